@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Runs every test: native Rust tests (GPU kernels on Mesa's lavapipe), the training smoke test,
+# then the browser tests against a release web build in Debian's headless Chromium (WebGPU on
+# SwiftShader). Installs what is missing first (idempotent).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
+mkdir -p artifacts
+
+bash scripts/setup.sh all
+
+echo "== native tests (cargo test)"
+cargo test
+
+echo "== training smoke test"
+.venv/bin/python -m training.test_smoke
+
+echo "== web build"
+NKRR_BUILD_ONLY=1 bash scripts/serve.sh
+
+echo "== browser tests"
+node --test --test-concurrency=1 tests/browser/

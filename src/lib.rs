@@ -1,0 +1,15 @@
+//! nkrr: surface reconstruction from raw point clouds, in the browser, on WebGPU.
+//!
+//! Data flows one way through one module per stage (see `docs/architecture.md`):
+//! `io::ply` → `cloud` → `net` → `sample` → `krr` → `field` → `mesh` → `io::gltf`.
+//! The same code builds natively (tests, the `nkrr` CLI) and for `wasm32-unknown-unknown`.
+
+pub mod cloud;
+pub mod gpu;
+pub mod io;
+pub mod mesh;
+
+#[cfg(target_arch = "wasm32")]
+pub mod web;
+
+pub use cloud::PointCloud;

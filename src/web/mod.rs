@@ -1,0 +1,68 @@
+//! The browser entry points (wasm32 only): PLY parsing and the 3D viewer, exposed to the page's
+//! JavaScript through wasm-bindgen. The DOM (drop zone, panels, events) stays in `web/app.js`;
+//! Rust owns the data and the GPU.
+
+mod viewer;
+
+pub use viewer::Viewer;
+
+use wasm_bindgen::prelude::*;
+
+use crate::io::ply;
+
+#[wasm_bindgen(start)]
+pub fn start() {
+    console_error_panic_hook::set_once();
+}
+
+/// A parsed cloud, held on the Rust side; the page reads its summary through getters.
+#[wasm_bindgen]
+pub struct Cloud {
+    pub(crate) parsed: ply::PlyCloud,
+}
+
+#[wasm_bindgen]
+impl Cloud {
+    /// Number of points kept (after dropping non-finite ones).
+    #[wasm_bindgen(getter)]
+    pub fn count(&self) -> usize {
+        self.parsed.cloud.len()
+    }
+
+    /// [min x, min y, min z, max x, max y, max z].
+    #[wasm_bindgen(getter)]
+    pub fn bounds(&self) -> Vec<f32> {
+        match self.parsed.cloud.bounds() {
+            Some(b) => vec![b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]],
+            None => vec![],
+        }
+    }
+
+    #[wasm_bindgen(getter)]
+    pub fn has_colors(&self) -> bool {
+        self.parsed.cloud.colors.is_some()
+    }
+
+    #[wasm_bindgen(getter)]
+    pub fn has_normals(&self) -> bool {
+        self.parsed.cloud.normals.is_some()
+    }
+
+    /// One line per thing the user should know (dropped points, ignored properties…).
+    #[wasm_bindgen(getter)]
+    pub fn warnings(&self) -> Vec<String> {
+        self.parsed.warnings()
+    }
+
+    /// A one-line description of the file's layout (format, properties).
+    #[wasm_bindgen(getter)]
+    pub fn layout(&self) -> String {
+        self.parsed.describe_layout()
+    }
+}
+
+/// Parses PLY bytes; the error message says what is wrong and where.
+#[wasm_bindgen]
+pub fn parse_ply(bytes: &[u8]) -> Result<Cloud, JsError> {
+    ply::read_ply(bytes).map(|parsed| Cloud { parsed }).map_err(|e| JsError::new(&e.to_string()))
+}

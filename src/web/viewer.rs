@@ -1,0 +1,386 @@
+//! The 3D view: a wgpu surface on the page's canvas, an orbit camera, and the cloud drawn as
+//! instanced point sprites. Rendering is on demand (the page calls `render` after input), so an
+//! idle page costs nothing.
+
+use glam::{Mat4, Vec3};
+use wasm_bindgen::prelude::*;
+use wgpu::util::DeviceExt;
+
+use super::Cloud;
+use crate::gpu::Gpu;
+
+const SHADER: &str = include_str!("../../shaders/points.wgsl");
+const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+const BACKGROUND: wgpu::Color = wgpu::Color { r: 0.07, g: 0.08, b: 0.10, a: 1.0 };
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ViewUniform {
+    view_proj: [[f32; 4]; 4],
+    viewport: [f32; 2],
+    point_size: f32,
+    use_color: f32,
+    height_lo: f32,
+    height_hi: f32,
+    _pad: [f32; 2],
+}
+
+/// Orbit camera around a target: yaw/pitch in radians, distance along the view direction.
+struct Orbit {
+    target: Vec3,
+    yaw: f32,
+    pitch: f32,
+    distance: f32,
+    radius: f32,
+}
+
+impl Orbit {
+    const FOV_Y: f32 = 0.8;
+
+    fn eye(&self) -> Vec3 {
+        let dir = Vec3::new(self.pitch.cos() * self.yaw.sin(), self.pitch.sin(), self.pitch.cos() * self.yaw.cos());
+        self.target + dir * self.distance
+    }
+
+    fn view_proj(&self, aspect: f32) -> Mat4 {
+        let near = (self.distance - 2.0 * self.radius).max(self.distance * 1e-3);
+        let far = self.distance + 2.0 * self.radius;
+        Mat4::perspective_rh(Self::FOV_Y, aspect, near, far) * Mat4::look_at_rh(self.eye(), self.target, Vec3::Y)
+    }
+
+    /// Frames a sphere of `radius` around `center` with a small margin.
+    fn fit(&mut self, center: Vec3, radius: f32) {
+        self.target = center;
+        self.radius = radius.max(1e-12);
+        self.distance = self.radius / (Self::FOV_Y * 0.5).sin() * 1.1;
+    }
+}
+
+struct CloudDraw {
+    positions: wgpu::Buffer,
+    colors: wgpu::Buffer,
+    count: u32,
+    has_color: bool,
+    center: Vec3,
+    radius: f32,
+    height: (f32, f32),
+}
+
+/// The page's 3D view.
+#[wasm_bindgen]
+pub struct Viewer {
+    gpu: Gpu,
+    surface: wgpu::Surface<'static>,
+    config: wgpu::SurfaceConfiguration,
+    pipeline: wgpu::RenderPipeline,
+    uniform: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    depth: wgpu::TextureView,
+    orbit: Orbit,
+    cloud: Option<CloudDraw>,
+    point_size: f32,
+}
+
+#[wasm_bindgen]
+impl Viewer {
+    /// Creates the view on `canvas`; fails with a readable message where WebGPU is missing.
+    pub async fn create(canvas: web_sys::HtmlCanvasElement) -> Result<Viewer, JsError> {
+        let (width, height) = (canvas.width().max(1), canvas.height().max(1));
+        let instance = Gpu::instance();
+        let surface = instance
+            .create_surface(wgpu::SurfaceTarget::Canvas(canvas))
+            .map_err(|e| JsError::new(&format!("cannot draw on the canvas: {e}")))?;
+        let gpu = Gpu::with_instance(&instance, Some(&surface)).await.map_err(|e| JsError::new(&e.to_string()))?;
+        let caps = surface.get_capabilities(&gpu.adapter);
+        // Prefer a non-sRGB format: the shader's colours are meant as displayed.
+        let format = caps
+            .formats
+            .iter()
+            .copied()
+            .find(|f| !f.is_srgb())
+            .or_else(|| caps.formats.first().copied())
+            .ok_or_else(|| JsError::new("the canvas offers no texture format"))?;
+        let config = wgpu::SurfaceConfiguration {
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            format,
+            width,
+            height,
+            present_mode: wgpu::PresentMode::Fifo,
+            desired_maximum_frame_latency: 2,
+            alpha_mode: wgpu::CompositeAlphaMode::Opaque,
+            view_formats: vec![],
+        };
+        surface.configure(&gpu.device, &config);
+
+        let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("points"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let pipeline = gpu.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("points"),
+            layout: None,
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs"),
+                compilation_options: Default::default(),
+                buffers: &[
+                    wgpu::VertexBufferLayout {
+                        array_stride: 12,
+                        step_mode: wgpu::VertexStepMode::Instance,
+                        attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+                    },
+                    wgpu::VertexBufferLayout {
+                        array_stride: 4,
+                        step_mode: wgpu::VertexStepMode::Instance,
+                        attributes: &wgpu::vertex_attr_array![1 => Unorm8x4],
+                    },
+                ],
+            },
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs"),
+                compilation_options: Default::default(),
+                targets: &[Some(format.into())],
+            }),
+            primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleStrip, ..Default::default() },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            multiview_mask: None,
+            cache: None,
+        });
+        let uniform = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("view"),
+            size: std::mem::size_of::<ViewUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("view"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
+        });
+        let depth = depth_view(&gpu.device, width, height);
+        Ok(Viewer {
+            gpu,
+            surface,
+            config,
+            pipeline,
+            uniform,
+            bind_group,
+            depth,
+            orbit: Orbit { target: Vec3::ZERO, yaw: 0.6, pitch: 0.35, distance: 3.0, radius: 1.0 },
+            cloud: None,
+            point_size: 2.5,
+        })
+    }
+
+    /// A one-line description of the adapter, for the page's footer and bug reports.
+    #[wasm_bindgen(getter)]
+    pub fn adapter(&self) -> String {
+        self.gpu.describe()
+    }
+
+    /// Shows `cloud` and frames it.
+    pub fn set_cloud(&mut self, cloud: &Cloud) {
+        let pc = &cloud.parsed.cloud;
+        let Some(b) = pc.bounds() else {
+            self.cloud = None;
+            return;
+        };
+        let colors: Vec<[u8; 4]> = match &pc.colors {
+            Some(c) => c.clone(),
+            None => vec![[0, 0, 0, 255]; pc.len()],
+        };
+        let device = &self.gpu.device;
+        let positions = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("cloud positions"),
+            contents: bytemuck::cast_slice(&pc.positions),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let colors = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("cloud colours"),
+            contents: bytemuck::cast_slice(&colors),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let center = Vec3::from(b.center());
+        let radius = 0.5 * Vec3::from(b.extent()).length();
+        self.cloud = Some(CloudDraw {
+            positions,
+            colors,
+            count: pc.len() as u32,
+            has_color: pc.colors.is_some(),
+            center,
+            radius,
+            height: (b.min[1], b.max[1]),
+        });
+        self.fit();
+    }
+
+    /// Frames the current content.
+    pub fn fit(&mut self) {
+        if let Some(c) = &self.cloud {
+            self.orbit.fit(c.center, c.radius);
+        }
+    }
+
+    /// Rotates by a drag of (dx, dy) pixels.
+    pub fn orbit(&mut self, dx: f32, dy: f32) {
+        self.orbit.yaw -= dx * 0.01;
+        self.orbit.pitch = (self.orbit.pitch + dy * 0.01).clamp(-1.55, 1.55);
+    }
+
+    /// Zooms by a wheel delta (positive: away).
+    pub fn zoom(&mut self, delta: f32) {
+        let f = (delta * 0.001).clamp(-0.5, 0.5).exp();
+        self.orbit.distance = (self.orbit.distance * f).clamp(self.orbit.radius * 0.05, self.orbit.radius * 50.0);
+    }
+
+    /// Sets the point size in device pixels.
+    pub fn set_point_size(&mut self, px: f32) {
+        self.point_size = px.clamp(1.0, 20.0);
+    }
+
+    /// Follows a canvas size change (device pixels).
+    pub fn resize(&mut self, width: u32, height: u32) {
+        let (w, h) = (width.max(1), height.max(1));
+        let max = self.gpu.limits.max_texture_dimension_2d;
+        self.config.width = w.min(max);
+        self.config.height = h.min(max);
+        self.surface.configure(&self.gpu.device, &self.config);
+        self.depth = depth_view(&self.gpu.device, self.config.width, self.config.height);
+    }
+
+    /// Draws one frame to the canvas.
+    pub fn render(&mut self) -> Result<(), JsError> {
+        let frame = match self.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(f) | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
+            other => {
+                // Lost/outdated: reconfigure and let the next render draw.
+                self.surface.configure(&self.gpu.device, &self.config);
+                return Err(JsError::new(&format!("the canvas was not ready: {other:?}")));
+            }
+        };
+        let view = frame.texture.create_view(&Default::default());
+        self.draw(&view);
+        frame.present();
+        Ok(())
+    }
+
+    /// Test hook: renders offscreen and returns the fraction of pixels that differ from the
+    /// background, so a browser test can tell a drawn cloud from an empty view.
+    pub async fn coverage(&mut self) -> Result<f32, JsError> {
+        let (w, h) = (self.config.width, self.config.height);
+        let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("coverage"),
+            size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: self.config.format,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        self.draw(&texture.create_view(&Default::default()));
+        let row = (w * 4).div_ceil(256) * 256;
+        let buffer = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("coverage readback"),
+            size: (row * h) as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+        encoder.copy_texture_to_buffer(
+            texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row), rows_per_image: Some(h) },
+            },
+            wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        );
+        self.gpu.queue.submit([encoder.finish()]);
+        let bytes: Vec<u8> = self.gpu.read(&buffer, (row * h) as usize).await.map_err(|e| JsError::new(&e.to_string()))?;
+        let bg = [BACKGROUND.r, BACKGROUND.g, BACKGROUND.b].map(|c| (c * 255.0).round() as i32);
+        let mut hit = 0usize;
+        for y in 0..h as usize {
+            for x in 0..w as usize {
+                let p = &bytes[y * row as usize + x * 4..][..4];
+                // BGRA or RGBA: compare both channel orders against the background.
+                let (r, g, b) = (p[0] as i32, p[1] as i32, p[2] as i32);
+                let near = |a: i32, b: i32| (a - b).abs() <= 3;
+                let is_bg = (near(r, bg[0]) && near(g, bg[1]) && near(b, bg[2]))
+                    || (near(b, bg[0]) && near(g, bg[1]) && near(r, bg[2]));
+                hit += !is_bg as usize;
+            }
+        }
+        Ok(hit as f32 / (w * h) as f32)
+    }
+}
+
+impl Viewer {
+    fn draw(&mut self, target: &wgpu::TextureView) {
+        let aspect = self.config.width as f32 / self.config.height as f32;
+        let (use_color, height) = match &self.cloud {
+            Some(c) => (c.has_color, c.height),
+            None => (false, (0.0, 1.0)),
+        };
+        let u = ViewUniform {
+            view_proj: self.orbit.view_proj(aspect).to_cols_array_2d(),
+            viewport: [self.config.width as f32, self.config.height as f32],
+            point_size: self.point_size,
+            use_color: use_color as u32 as f32,
+            height_lo: height.0,
+            height_hi: height.1,
+            _pad: [0.0; 2],
+        };
+        self.gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&u));
+        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("view"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: target,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(BACKGROUND), store: wgpu::StoreOp::Store },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &self.depth,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            if let Some(c) = &self.cloud {
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &self.bind_group, &[]);
+                pass.set_vertex_buffer(0, c.positions.slice(..));
+                pass.set_vertex_buffer(1, c.colors.slice(..));
+                pass.draw(0..4, 0..c.count);
+            }
+        }
+        self.gpu.queue.submit([encoder.finish()]);
+    }
+}
+
+fn depth_view(device: &wgpu::Device, width: u32, height: u32) -> wgpu::TextureView {
+    device
+        .create_texture(&wgpu::TextureDescriptor {
+            label: Some("depth"),
+            size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: DEPTH,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            view_formats: &[],
+        })
+        .create_view(&Default::default())
+}

@@ -1,0 +1,33 @@
+"""Generate the shape cache (resumable): python -m training.gen_cache --shapes 640 --workers 2"""
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import time
+
+from .data import CHUNK, gen_chunk, heldout_set, missing_chunks
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--shapes", type=int, default=640, help="pool size target (rounded up to chunks of 16)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--heldout", type=int, default=32, help="held-out set size (0: skip)")
+    a = ap.parse_args()
+    n_chunks = -(-a.shapes // CHUNK)
+    todo = missing_chunks(n_chunks)
+    t0 = time.time()
+    if a.heldout:
+        heldout_set(a.heldout)
+    print(f"{n_chunks - len(todo)} of {n_chunks} chunks present; generating {len(todo)}", flush=True)
+    done = 0
+    with mp.Pool(a.workers) as pool:
+        for _ in pool.imap_unordered(gen_chunk, todo):
+            done += 1
+            dt = time.time() - t0
+            print(f"chunk {done}/{len(todo)}  {done * CHUNK / dt:.2f} shapes/s", flush=True)
+    print(f"done in {time.time() - t0:.0f}s", flush=True)
+
+
+if __name__ == "__main__":
+    main()
