@@ -63,7 +63,7 @@ step_python() {
         log "python: creating .venv"
         python3 -m venv .venv
     fi
-    if ! .venv/bin/python -c 'import torch, numpy, trimesh, safetensors' 2>/dev/null; then
+    if ! .venv/bin/python -c 'import torch, numpy, skimage, scipy, trimesh, safetensors, pytest' 2>/dev/null; then
         log "python: installing training/requirements.txt (PyTorch is large)"
         .venv/bin/pip install -q --disable-pip-version-check -r training/requirements.txt
     else

@@ -14,7 +14,7 @@ echo "== native tests (cargo test)"
 cargo test
 
 echo "== training smoke test"
-.venv/bin/python -m training.test_smoke
+.venv/bin/python -m pytest -q -p no:cacheprovider training/test_smoke.py
 
 echo "== web build"
 NKRR_BUILD_ONLY=1 bash scripts/serve.sh

@@ -8,6 +8,7 @@ pub mod cloud;
 pub mod gpu;
 pub mod io;
 pub mod mesh;
+pub mod net;
 
 #[cfg(target_arch = "wasm32")]
 pub mod web;

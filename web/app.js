@@ -31,7 +31,7 @@ function requestRender() {
   if (!viewer || frame) return;
   frame = requestAnimationFrame(() => {
     frame = 0;
-    try { viewer.render(); } catch (e) { console.warn(String(e)); }
+    try { viewer.render(); } catch (e) { console.error(`render failed: ${e.message ?? e}`); }
   });
 }
 

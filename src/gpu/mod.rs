@@ -48,7 +48,9 @@ impl fmt::Display for GpuError {
 
 impl std::error::Error for GpuError {}
 
-/// The device, its queue, and what it can do.
+/// The device, its queue, and what it can do. Cloning is cheap (handles are shared), which
+/// lets async work own a handle instead of borrowing its creator across an `await`.
+#[derive(Clone)]
 pub struct Gpu {
     pub adapter: wgpu::Adapter,
     pub device: wgpu::Device,
@@ -108,13 +110,16 @@ impl Gpu {
     pub fn describe(&self) -> String {
         let l = &self.limits;
         format!(
-            "{} ({:?}, {:?}, driver {} {}); max buffer {} MiB, max storage binding {} MiB, \
+            "{} ({:?}, {:?}{}); max buffer {} MiB, max storage binding {} MiB, \
              {} invocations/workgroup, {} workgroups/dimension, {} storage buffers/stage",
-            self.info.name,
+            if self.info.name.is_empty() { "unnamed adapter" } else { &self.info.name },
             self.info.device_type,
             self.info.backend,
-            self.info.driver,
-            self.info.driver_info,
+            if self.info.driver.is_empty() {
+                String::new()
+            } else {
+                format!(", driver {} {}", self.info.driver, self.info.driver_info)
+            },
             l.max_buffer_size >> 20,
             l.max_storage_buffer_binding_size >> 20,
             l.max_compute_invocations_per_workgroup,

@@ -109,6 +109,7 @@ impl Viewer {
             desired_maximum_frame_latency: 2,
             alpha_mode: wgpu::CompositeAlphaMode::Opaque,
             view_formats: vec![],
+            color_space: Default::default(),
         };
         surface.configure(&gpu.device, &config);
 
@@ -124,16 +125,16 @@ impl Viewer {
                 entry_point: Some("vs"),
                 compilation_options: Default::default(),
                 buffers: &[
-                    wgpu::VertexBufferLayout {
+                    Some(wgpu::VertexBufferLayout {
                         array_stride: 12,
                         step_mode: wgpu::VertexStepMode::Instance,
                         attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-                    },
-                    wgpu::VertexBufferLayout {
+                    }),
+                    Some(wgpu::VertexBufferLayout {
                         array_stride: 4,
                         step_mode: wgpu::VertexStepMode::Instance,
                         attributes: &wgpu::vertex_attr_array![1 => Unorm8x4],
-                    },
+                    }),
                 ],
             },
             fragment: Some(wgpu::FragmentState {
@@ -268,14 +269,16 @@ impl Viewer {
         };
         let view = frame.texture.create_view(&Default::default());
         self.draw(&view);
-        frame.present();
+        self.gpu.queue.present(frame);
         Ok(())
     }
 
-    /// Test hook: renders offscreen and returns the fraction of pixels that differ from the
-    /// background, so a browser test can tell a drawn cloud from an empty view.
-    pub async fn coverage(&mut self) -> Result<f32, JsError> {
+    /// Test hook: renders offscreen and resolves to the fraction of pixels that differ from the
+    /// background, so a browser test can tell a drawn cloud from an empty view. The borrow of
+    /// the viewer ends before the promise's readback, so renders may interleave with it.
+    pub fn coverage(&mut self) -> js_sys::Promise {
         let (w, h) = (self.config.width, self.config.height);
+        let scope = self.gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
             label: Some("coverage"),
             size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
@@ -304,21 +307,28 @@ impl Viewer {
             wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
         );
         self.gpu.queue.submit([encoder.finish()]);
-        let bytes: Vec<u8> = self.gpu.read(&buffer, (row * h) as usize).await.map_err(|e| JsError::new(&e.to_string()))?;
-        let bg = [BACKGROUND.r, BACKGROUND.g, BACKGROUND.b].map(|c| (c * 255.0).round() as i32);
-        let mut hit = 0usize;
-        for y in 0..h as usize {
-            for x in 0..w as usize {
-                let p = &bytes[y * row as usize + x * 4..][..4];
-                // BGRA or RGBA: compare both channel orders against the background.
-                let (r, g, b) = (p[0] as i32, p[1] as i32, p[2] as i32);
-                let near = |a: i32, b: i32| (a - b).abs() <= 3;
-                let is_bg = (near(r, bg[0]) && near(g, bg[1]) && near(b, bg[2]))
-                    || (near(b, bg[0]) && near(g, bg[1]) && near(r, bg[2]));
-                hit += !is_bg as usize;
+        let gpu = self.gpu.clone();
+        let scope = scope.pop();
+        wasm_bindgen_futures::future_to_promise(async move {
+            if let Some(e) = scope.await {
+                return Err(JsError::new(&format!("offscreen render failed: {e}")).into());
             }
-        }
-        Ok(hit as f32 / (w * h) as f32)
+            let bytes: Vec<u8> = gpu.read(&buffer, (row * h) as usize).await.map_err(|e| JsError::new(&e.to_string()))?;
+            drop(texture);
+            let bg = [BACKGROUND.r, BACKGROUND.g, BACKGROUND.b].map(|c| (c * 255.0).round() as i32);
+            let near = |a: i32, b: i32| (a - b).abs() <= 3;
+            let mut hit = 0usize;
+            for y in 0..h as usize {
+                for p in bytes[y * row as usize..][..w as usize * 4].chunks_exact(4) {
+                    // BGRA or RGBA: compare both channel orders against the background.
+                    let (r, g, b) = (p[0] as i32, p[1] as i32, p[2] as i32);
+                    let is_bg = (near(r, bg[0]) && near(g, bg[1]) && near(b, bg[2]))
+                        || (near(b, bg[0]) && near(g, bg[1]) && near(r, bg[2]));
+                    hit += !is_bg as usize;
+                }
+            }
+            Ok(JsValue::from_f64(hit as f64 / (w * h) as f64))
+        })
     }
 }
 

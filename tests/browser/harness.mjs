@@ -39,7 +39,10 @@ export async function browser({ webgpu = true } = {}) {
     '--no-sandbox', '--no-first-run', '--disable-background-networking', '--disable-component-update',
     '--disable-sync', '--disable-quic', '--disable-dev-shm-usage',
   ];
-  if (webgpu) args.push('--enable-unsafe-webgpu');
+  // WebGPU on SwiftShader. The Vulkan/ANGLE flags matter as soon as a page presents to a
+  // WebGPU canvas: without them the GPU process finds no shared-image backing for the swap
+  // chain, dies, and every later buffer map fails ("no valid external Instance").
+  if (webgpu) args.push('--enable-unsafe-webgpu', '--use-angle=vulkan', '--enable-features=Vulkan', '--use-vulkan=swiftshader');
   return chromium.launch({ executablePath: '/usr/bin/chromium', headless: true, args });
 }
 

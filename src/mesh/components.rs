@@ -1,0 +1,112 @@
+//! Connected components of a mesh (triangles sharing a vertex are connected), and removal of the
+//! small ones.
+
+use super::Mesh;
+
+fn find(parent: &mut [u32], mut x: u32) -> u32 {
+    while parent[x as usize] != x {
+        let p = parent[x as usize];
+        parent[x as usize] = parent[p as usize]; // path halving
+        x = parent[x as usize];
+    }
+    x
+}
+
+/// The component of each triangle, numbered `0..count` in order of first appearance, and the
+/// triangle count of each component. Triangles with an index out of range are their own
+/// component.
+pub fn triangle_components(mesh: &Mesh) -> (Vec<u32>, Vec<usize>) {
+    let n = mesh.positions.len();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    for t in mesh.indices.chunks_exact(3) {
+        if t.iter().any(|&i| i as usize >= n) {
+            continue;
+        }
+        let a = find(&mut parent, t[0]);
+        for &i in &t[1..] {
+            let b = find(&mut parent, i);
+            if a != b {
+                // Union by smaller index keeps the root deterministic.
+                let (lo, hi) = if a < b { (a, b) } else { (b, a) };
+                parent[hi as usize] = lo;
+            }
+        }
+    }
+    let mut label = vec![u32::MAX; n];
+    let mut sizes: Vec<usize> = Vec::new();
+    let mut out = Vec::with_capacity(mesh.indices.len() / 3);
+    for t in mesh.indices.chunks_exact(3) {
+        let c = if t.iter().any(|&i| i as usize >= n) {
+            sizes.push(0);
+            (sizes.len() - 1) as u32
+        } else {
+            let r = find(&mut parent, t[0]) as usize;
+            if label[r] == u32::MAX {
+                label[r] = sizes.len() as u32;
+                sizes.push(0);
+            }
+            label[r]
+        };
+        sizes[c as usize] += 1;
+        out.push(c);
+    }
+    (out, sizes)
+}
+
+/// What [`remove_small_components`] did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Removal {
+    pub components: usize,
+    pub components_removed: usize,
+    pub triangles_removed: usize,
+}
+
+/// Drops the connected components with fewer than `fraction` times the largest component's
+/// triangles, and the vertices only they used (the rest keep their order). Normals and colours,
+/// when present, follow their vertices. (Triangles with an index out of range are dropped too
+/// when anything is removed.)
+pub fn remove_small_components(mesh: &mut Mesh, fraction: f32) -> Removal {
+    let (comp, sizes) = triangle_components(mesh);
+    let largest = sizes.iter().copied().max().unwrap_or(0);
+    let keep: Vec<bool> = sizes.iter().map(|&s| (s as f64) >= fraction as f64 * largest as f64).collect();
+    let mut r = Removal { components: sizes.len(), ..Default::default() };
+    r.components_removed = keep.iter().filter(|&&k| !k).count();
+    if r.components_removed == 0 {
+        return r;
+    }
+    let n = mesh.positions.len();
+    let mut indices = Vec::with_capacity(mesh.indices.len());
+    let mut used = vec![false; n];
+    for (t, &c) in mesh.indices.chunks_exact(3).zip(&comp) {
+        if keep[c as usize] && t.iter().all(|&i| (i as usize) < n) {
+            indices.extend_from_slice(t);
+            for &i in t {
+                used[i as usize] = true;
+            }
+        } else {
+            r.triangles_removed += 1;
+        }
+    }
+    let mut remap = vec![u32::MAX; n];
+    let mut next = 0u32;
+    for (i, &u) in used.iter().enumerate() {
+        if u {
+            remap[i] = next;
+            next += 1;
+        }
+    }
+    let pick = |v: &Vec<[f32; 3]>| -> Vec<[f32; 3]> {
+        v.iter().zip(&used).filter(|(_, &u)| u).map(|(p, _)| *p).collect()
+    };
+    mesh.positions = pick(&mesh.positions);
+    if mesh.normals.len() == n {
+        mesh.normals = pick(&mesh.normals);
+    }
+    if let Some(c) = mesh.colors.as_mut() {
+        if c.len() == n {
+            *c = c.iter().zip(&used).filter(|(_, &u)| u).map(|(x, _)| *x).collect();
+        }
+    }
+    mesh.indices = indices.iter().map(|&i| remap[i as usize]).collect();
+    r
+}

@@ -1,0 +1,644 @@
+//! Coarse-to-fine search for the cells the surface passes through, as a state machine that asks
+//! for explicit batches of field evaluations (so the same code serves a blocking native field
+//! and an asynchronous browser one).
+//!
+//! The finest grid has `resolution³` cells over the domain; its corners are addressed by integer
+//! coordinates `0..=resolution` per axis. The search:
+//!
+//! 1. evaluates every corner of the coarse grid (`coarse'³` cells, where `coarse'` is
+//!    `resolution / 2^levels`, the smallest such value `>= coarse`, see [`Plan`]);
+//! 2. marks the cells whose corners do not all have the same side (INSIDE: value `> 0`), plus
+//!    every cell touching one of them (a one-cell dilation, so that a feature that slips between
+//!    the corners of one level is still refined when it shows at the next);
+//! 3. splits each marked cell into 8 and evaluates the corners not known yet; repeats 2–3 until
+//!    the finest level, where the cells with a sign change are the active cells;
+//! 4. closes the surface: while an active cell has a face with corners on both sides whose
+//!    neighbour across that face is not active, the neighbour is added (its missing corners
+//!    evaluated). Marching cubes makes the same segments on both sides of a face, so after this
+//!    every surface component that was found at all is complete: the result is watertight
+//!    however the coarse levels sampled the field, and for a smooth field it equals the dense
+//!    grid's.
+//!
+//! Outside the domain counts as outside: corner values on the domain's boundary are clamped to
+//! at most 0, so the surface closes along the boundary where the field is positive there.
+//! Non-finite values are made finite: NaN counts as outside (0), ±∞ as ±1e30.
+
+use std::collections::{HashMap, HashSet};
+use std::fmt;
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// Why a field could not be evaluated.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FieldError(pub String);
+
+impl fmt::Display for FieldError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "field evaluation failed: {}", self.0)
+    }
+}
+
+impl std::error::Error for FieldError {}
+
+impl From<String> for FieldError {
+    fn from(s: String) -> Self {
+        FieldError(s)
+    }
+}
+
+impl From<&str> for FieldError {
+    fn from(s: &str) -> Self {
+        FieldError(s.to_string())
+    }
+}
+
+impl From<crate::gpu::GpuError> for FieldError {
+    fn from(e: crate::gpu::GpuError) -> Self {
+        FieldError(e.to_string())
+    }
+}
+
+/// An implicit surface, evaluated in batches: one logit-like value per point, INSIDE where the
+/// value is `> 0`; the surface is the 0 level. Points are in the domain's coordinates.
+///
+/// A batch can be large (all `(coarse + 1)³` coarse corners at once, hundreds of thousands of
+/// points at later levels): an implementation with a memory limit splits it itself.
+/// Any `FnMut(&[[f32; 3]]) -> Result<Vec<f32>, FieldError>` closure is a field.
+pub trait Field {
+    fn eval(&mut self, points: &[[f32; 3]]) -> Result<Vec<f32>, FieldError>;
+}
+
+impl<F> Field for F
+where
+    F: FnMut(&[[f32; 3]]) -> Result<Vec<f32>, FieldError>,
+{
+    fn eval(&mut self, points: &[[f32; 3]]) -> Result<Vec<f32>, FieldError> {
+        self(points)
+    }
+}
+
+/// What to extract, and how finely.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExtractOptions {
+    /// The finest grid has `resolution³` cells over the domain.
+    pub resolution: u32,
+    /// The coarsest grid has about `coarse³` cells (see [`Plan`] for the exact value); `coarse
+    /// >= resolution` evaluates the dense finest grid.
+    pub coarse: u32,
+    /// The domain `(min, max)`: a padded box around the data, outside which everything is
+    /// outside.
+    pub domain: ([f32; 3], [f32; 3]),
+    /// Drop connected components with fewer than this fraction of the largest component's
+    /// triangles (`None`: keep all).
+    pub remove_small_components: Option<f32>,
+}
+
+impl Default for ExtractOptions {
+    fn default() -> Self {
+        ExtractOptions {
+            resolution: 128,
+            coarse: 32,
+            domain: ([-0.55; 3], [0.55; 3]),
+            remove_small_components: None,
+        }
+    }
+}
+
+/// The largest supported `resolution` (corner coordinates must fit 32-bit keys on the GPU).
+pub const MAX_RESOLUTION: u32 = 1024;
+
+/// Why extraction failed.
+#[derive(Debug)]
+pub enum ExtractError {
+    /// The options make no sense (resolution 0, empty or non-finite domain, …).
+    InvalidOptions(String),
+    /// The field failed, or returned the wrong number of values.
+    Field(FieldError),
+    /// The GPU marching cubes failed.
+    Gpu(crate::gpu::GpuError),
+    /// The state machine was used out of order (a bug in the caller).
+    Protocol(String),
+}
+
+impl fmt::Display for ExtractError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ExtractError::InvalidOptions(s) => write!(f, "invalid extraction options: {s}"),
+            ExtractError::Field(e) => write!(f, "{e}"),
+            ExtractError::Gpu(e) => write!(f, "{e}"),
+            ExtractError::Protocol(s) => write!(f, "extraction protocol error: {s}"),
+        }
+    }
+}
+
+impl std::error::Error for ExtractError {}
+
+impl From<FieldError> for ExtractError {
+    fn from(e: FieldError) -> Self {
+        ExtractError::Field(e)
+    }
+}
+
+impl From<crate::gpu::GpuError> for ExtractError {
+    fn from(e: crate::gpu::GpuError) -> Self {
+        ExtractError::Gpu(e)
+    }
+}
+
+/// The levels the search goes through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Plan {
+    /// Cells per axis of the finest grid (`ExtractOptions::resolution`).
+    pub resolution: u32,
+    /// Cells per axis of the coarsest grid: `resolution` halved while it stays even and the
+    /// half is still `>= ExtractOptions::coarse` (so 128 / 32 → 32, 100 / 32 → 50, 96 / 20 → 24).
+    pub coarse: u32,
+    /// Number of refinements: `resolution = coarse << levels`.
+    pub levels: u32,
+}
+
+impl Plan {
+    pub fn new(opts: &ExtractOptions) -> Result<Plan, ExtractError> {
+        let bad = |s: String| Err(ExtractError::InvalidOptions(s));
+        if opts.resolution == 0 || opts.resolution > MAX_RESOLUTION {
+            return bad(format!("resolution {} is not in 1..={MAX_RESOLUTION}", opts.resolution));
+        }
+        if opts.coarse == 0 {
+            return bad("coarse is 0".into());
+        }
+        let (lo, hi) = opts.domain;
+        for a in 0..3 {
+            if !(lo[a].is_finite() && hi[a].is_finite() && lo[a] < hi[a]) {
+                return bad(format!("domain {:?} .. {:?} is empty or not finite", lo, hi));
+            }
+        }
+        if let Some(f) = opts.remove_small_components {
+            if !(f.is_finite() && f >= 0.0) {
+                return bad(format!("remove_small_components {f} is not a non-negative number"));
+            }
+        }
+        let mut coarse = opts.resolution;
+        let mut levels = 0;
+        while coarse % 2 == 0 && coarse / 2 >= opts.coarse {
+            coarse /= 2;
+            levels += 1;
+        }
+        Ok(Plan { resolution: opts.resolution, coarse, levels })
+    }
+}
+
+/// The finest-level cells the surface passes through, with their corner values: the input of
+/// marching cubes (CPU: [`super::marching_cubes::polygonize`], GPU:
+/// [`super::marching_cubes_gpu::polygonize_gpu`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ActiveCells {
+    /// Cells per axis of the grid.
+    pub resolution: u32,
+    /// The domain `(min, max)`; corner `(i, j, k)` is at `min + (max - min) * (i, j, k) / resolution`.
+    pub domain: ([f32; 3], [f32; 3]),
+    /// Cell coordinates (its low corner), sorted by `x + R (y + R z)`.
+    pub cells: Vec<[u32; 3]>,
+    /// The 8 corner values of each cell, corner `c` at offset `(c & 1, c >> 1 & 1, c >> 2 & 1)`,
+    /// already clamped at the domain boundary and made finite.
+    pub values: Vec<[f32; 8]>,
+}
+
+impl ActiveCells {
+    /// Every cell of a dense grid of values, `values[x + (R+1) (y + (R+1) z)]`, with a sign
+    /// change (the values are sanitised and clamped at the boundary like the field's).
+    pub fn from_dense(resolution: u32, domain: ([f32; 3], [f32; 3]), values: &[f32]) -> ActiveCells {
+        let r = resolution as usize;
+        let n = r + 1;
+        assert_eq!(values.len(), n * n * n, "need (resolution + 1)^3 values");
+        let mut out = ActiveCells { resolution, domain, cells: Vec::new(), values: Vec::new() };
+        for z in 0..r {
+            for y in 0..r {
+                for x in 0..r {
+                    let mut v = [0.0f32; 8];
+                    for (c, vc) in v.iter_mut().enumerate() {
+                        let (i, j, k) = (x + (c & 1), y + (c >> 1 & 1), z + (c >> 2 & 1));
+                        let raw = values[i + n * (j + n * k)];
+                        *vc = corner_value(raw, [i as u32, j as u32, k as u32], resolution);
+                    }
+                    if has_sign_change(&v) {
+                        out.cells.push([x as u32, y as u32, z as u32]);
+                        out.values.push(v);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    pub fn len(&self) -> usize {
+        self.cells.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+}
+
+/// What the search did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RefineStats {
+    pub plan_coarse: u32,
+    pub levels: u32,
+    /// Field evaluations made (each corner once).
+    pub evaluations: u64,
+    /// What a dense finest grid would have cost: `(resolution + 1)³`.
+    pub dense_evaluations: u64,
+    /// Batches handed to the field.
+    pub batches: u32,
+    /// Points per batch, in order.
+    pub batch_sizes: Vec<usize>,
+    /// Active cells at the finest level (after closing).
+    pub active_cells: usize,
+    /// Cells the closing step added (0 when the coarse levels found the whole surface).
+    pub closure_cells: usize,
+    /// Rounds of the closing step that needed evaluations.
+    pub closure_rounds: u32,
+}
+
+/// Value at a finest-grid corner as marching cubes sees it: finite, and `<= 0` on the boundary.
+pub fn corner_value(raw: f32, at: [u32; 3], resolution: u32) -> f32 {
+    let v = if raw.is_nan() { 0.0 } else { raw.clamp(-1e30, 1e30) };
+    if at.iter().any(|&i| i == 0 || i == resolution) {
+        v.min(0.0)
+    } else {
+        v
+    }
+}
+
+fn has_sign_change(v: &[f32; 8]) -> bool {
+    let inside = v.iter().filter(|&&x| x > 0.0).count();
+    inside != 0 && inside != 8
+}
+
+/// A hasher for integer keys (SplitMix64's finaliser): the structured grid keys would collide
+/// badly in the low bits under a plain multiply.
+#[derive(Default)]
+pub(crate) struct KeyHasher(u64);
+
+impl Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        let mut z = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(0x100_0000_01b3);
+        }
+    }
+    fn write_u64(&mut self, i: u64) {
+        self.0 = self.0.rotate_left(29) ^ i;
+    }
+    fn write_u32(&mut self, i: u32) {
+        self.write_u64(i as u64)
+    }
+    fn write_usize(&mut self, i: usize) {
+        self.write_u64(i as u64)
+    }
+}
+
+pub(crate) type KeyMap<V> = HashMap<u64, V, BuildHasherDefault<KeyHasher>>;
+pub(crate) type KeySet = HashSet<u64, BuildHasherDefault<KeyHasher>>;
+
+#[derive(Debug)]
+enum Stage {
+    /// Waiting for the values of `pending`; then continue at refinement level `level`
+    /// (`0` = the coarse grid) with `cells` (cells of that level, sorted, deduplicated; unused
+    /// for level 0, which is every cell).
+    Level { level: u32, cells: Vec<u64> },
+    /// Waiting for the values of `pending` for the closing step; `cells` are the finest cells
+    /// being added.
+    Closure { cells: Vec<u64> },
+    Done,
+}
+
+/// The coarse-to-fine search as a state machine: while [`Refiner::pending`] is `Some(points)`,
+/// evaluate the field there and [`Refiner::supply`] the values (same order); then
+/// [`Refiner::finish`] returns the active cells.
+///
+/// ```ignore
+/// let mut r = Refiner::new(&opts)?;
+/// while let Some(points) = r.pending() {
+///     let values = field.eval(points)?;   // or `.await` an async evaluation
+///     r.supply(&values)?;
+/// }
+/// let (cells, stats) = r.finish()?;
+/// ```
+pub struct Refiner {
+    plan: Plan,
+    domain: ([f32; 3], [f32; 3]),
+    /// Known corner values by finest corner key `x + (R+1) (y + (R+1) z)`, already clamped.
+    known: KeyMap<f32>,
+    /// Keys and positions of the batch being asked for.
+    pending_keys: Vec<u64>,
+    pending_points: Vec<[f32; 3]>,
+    stage: Stage,
+    /// Active finest cells (key `x + R (y + R z)`).
+    active: KeySet,
+    stats: RefineStats,
+}
+
+impl Refiner {
+    pub fn new(opts: &ExtractOptions) -> Result<Refiner, ExtractError> {
+        let plan = Plan::new(opts)?;
+        let r = plan.resolution as u64;
+        let mut me = Refiner {
+            plan,
+            domain: opts.domain,
+            known: KeyMap::default(),
+            pending_keys: Vec::new(),
+            pending_points: Vec::new(),
+            stage: Stage::Level { level: 0, cells: Vec::new() },
+            active: KeySet::default(),
+            stats: RefineStats {
+                plan_coarse: plan.coarse,
+                levels: plan.levels,
+                dense_evaluations: (r + 1).pow(3),
+                ..Default::default()
+            },
+        };
+        // The coarse grid: every corner.
+        let s = me.scale(0);
+        let n = plan.coarse;
+        for z in 0..=n {
+            for y in 0..=n {
+                for x in 0..=n {
+                    me.ask([x * s, y * s, z * s]);
+                }
+            }
+        }
+        Ok(me)
+    }
+
+    pub fn plan(&self) -> Plan {
+        self.plan
+    }
+
+    /// The points whose values are needed next, or `None` when the search is done.
+    pub fn pending(&self) -> Option<&[[f32; 3]]> {
+        match self.stage {
+            Stage::Done => None,
+            _ => Some(&self.pending_points),
+        }
+    }
+
+    /// Gives the values of the points [`Refiner::pending`] returned, in the same order, and
+    /// runs the search up to the next batch it needs.
+    pub fn supply(&mut self, values: &[f32]) -> Result<(), ExtractError> {
+        if matches!(self.stage, Stage::Done) {
+            return Err(ExtractError::Protocol("supply() after the search finished".into()));
+        }
+        if values.len() != self.pending_keys.len() {
+            return Err(ExtractError::Field(FieldError(format!(
+                "the field returned {} values for {} points",
+                values.len(),
+                self.pending_keys.len()
+            ))));
+        }
+        let keys = std::mem::take(&mut self.pending_keys);
+        self.pending_points.clear();
+        for (&k, &v) in keys.iter().zip(values) {
+            let at = self.unkey_corner(k);
+            self.known.insert(k, corner_value(v, at, self.plan.resolution));
+        }
+        self.stats.evaluations += keys.len() as u64;
+        self.stats.batches += 1;
+        self.stats.batch_sizes.push(keys.len());
+        self.advance();
+        Ok(())
+    }
+
+    /// The active cells and statistics, once [`Refiner::pending`] is `None`.
+    pub fn finish(self) -> Result<(ActiveCells, RefineStats), ExtractError> {
+        if !matches!(self.stage, Stage::Done) {
+            return Err(ExtractError::Protocol("finish() before the search is done".into()));
+        }
+        let r = self.plan.resolution as u64;
+        let mut keys: Vec<u64> = self.active.iter().copied().collect();
+        keys.sort_unstable();
+        let mut out = ActiveCells {
+            resolution: self.plan.resolution,
+            domain: self.domain,
+            cells: Vec::with_capacity(keys.len()),
+            values: Vec::with_capacity(keys.len()),
+        };
+        for k in keys {
+            let c = [(k % r) as u32, (k / r % r) as u32, (k / (r * r)) as u32];
+            out.values.push(self.cell_values(self.plan.levels, c).expect("active cells are known"));
+            out.cells.push(c);
+        }
+        let mut stats = self.stats;
+        stats.active_cells = out.cells.len();
+        Ok((out, stats))
+    }
+
+    // -----------------------------------------------------------------------------------------
+
+    /// Finest-grid units per cell at `level`.
+    fn scale(&self, level: u32) -> u32 {
+        1 << (self.plan.levels - level)
+    }
+
+    fn cells_at(&self, level: u32) -> u32 {
+        self.plan.coarse << level
+    }
+
+    fn key_corner(&self, at: [u32; 3]) -> u64 {
+        let n = self.plan.resolution as u64 + 1;
+        at[0] as u64 + n * (at[1] as u64 + n * at[2] as u64)
+    }
+
+    fn unkey_corner(&self, k: u64) -> [u32; 3] {
+        let n = self.plan.resolution as u64 + 1;
+        [(k % n) as u32, (k / n % n) as u32, (k / (n * n)) as u32]
+    }
+
+    /// Position of a finest-grid corner (same formula as marching cubes uses).
+    fn position(&self, at: [u32; 3]) -> [f32; 3] {
+        let (lo, hi) = self.domain;
+        let r = self.plan.resolution as f32;
+        std::array::from_fn(|a| lo[a] + (hi[a] - lo[a]) * (at[a] as f32 / r))
+    }
+
+    /// Queues a corner (finest coordinates) for evaluation unless known or queued.
+    fn ask(&mut self, at: [u32; 3]) {
+        let k = self.key_corner(at);
+        if self.known.contains_key(&k) {
+            return;
+        }
+        // Mark as queued with a NaN placeholder, overwritten by supply().
+        self.known.insert(k, f32::NAN);
+        self.pending_keys.push(k);
+        let p = self.position(at);
+        self.pending_points.push(p);
+    }
+
+    /// Queues the unknown corners of cell `c` at `level`.
+    fn ask_cell(&mut self, level: u32, c: [u32; 3]) {
+        let s = self.scale(level);
+        for i in 0..8u32 {
+            self.ask([(c[0] + (i & 1)) * s, (c[1] + (i >> 1 & 1)) * s, (c[2] + (i >> 2 & 1)) * s]);
+        }
+    }
+
+    fn cell_values(&self, level: u32, c: [u32; 3]) -> Option<[f32; 8]> {
+        let s = self.scale(level);
+        let mut v = [0.0f32; 8];
+        for (i, vi) in v.iter_mut().enumerate() {
+            let i = i as u32;
+            let at = [(c[0] + (i & 1)) * s, (c[1] + (i >> 1 & 1)) * s, (c[2] + (i >> 2 & 1)) * s];
+            *vi = *self.known.get(&self.key_corner(at))?;
+        }
+        Some(v)
+    }
+
+    fn key_cell(&self, level: u32, c: [u32; 3]) -> u64 {
+        let n = self.cells_at(level) as u64;
+        c[0] as u64 + n * (c[1] as u64 + n * c[2] as u64)
+    }
+
+    fn unkey_cell(&self, level: u32, k: u64) -> [u32; 3] {
+        let n = self.cells_at(level) as u64;
+        [(k % n) as u32, (k / n % n) as u32, (k / (n * n)) as u32]
+    }
+
+    /// Runs the search after a batch arrived, until it needs another batch or is done.
+    fn advance(&mut self) {
+        loop {
+            match std::mem::replace(&mut self.stage, Stage::Done) {
+                Stage::Done => return,
+                Stage::Level { level, cells } => {
+                    // Cells of this level whose corners are all known now.
+                    let cells = if level == 0 {
+                        let n = self.plan.coarse as u64;
+                        (0..n * n * n).collect()
+                    } else {
+                        cells
+                    };
+                    let changing: Vec<u64> = cells
+                        .iter()
+                        .copied()
+                        .filter(|&k| {
+                            let v = self.cell_values(level, self.unkey_cell(level, k)).unwrap();
+                            has_sign_change(&v)
+                        })
+                        .collect();
+                    if level == self.plan.levels {
+                        self.active.extend(changing.iter().copied());
+                        self.start_closure(changing);
+                    } else {
+                        let marked = self.dilate(level, &changing);
+                        let mut children = Vec::with_capacity(marked.len() * 8);
+                        for k in marked {
+                            let c = self.unkey_cell(level, k);
+                            for i in 0..8u32 {
+                                let child = [2 * c[0] + (i & 1), 2 * c[1] + (i >> 1 & 1), 2 * c[2] + (i >> 2 & 1)];
+                                children.push(self.key_cell(level + 1, child));
+                            }
+                        }
+                        children.sort_unstable();
+                        for &k in &children {
+                            let c = self.unkey_cell(level + 1, k);
+                            self.ask_cell(level + 1, c);
+                        }
+                        self.stage = Stage::Level { level: level + 1, cells: children };
+                    }
+                }
+                Stage::Closure { cells } => {
+                    // The added cells have a face with a sign change, so they are active.
+                    let mut added = Vec::with_capacity(cells.len());
+                    for k in cells {
+                        let c = self.unkey_cell(self.plan.levels, k);
+                        let v = self.cell_values(self.plan.levels, c).unwrap();
+                        debug_assert!(has_sign_change(&v));
+                        if self.active.insert(k) {
+                            added.push(k);
+                        }
+                    }
+                    self.stats.closure_cells += added.len();
+                    self.start_closure(added);
+                }
+            }
+            if !self.pending_keys.is_empty() || matches!(self.stage, Stage::Done) {
+                return;
+            }
+        }
+    }
+
+    /// The cells of `level` within one cell (26-neighbourhood) of `cells`, sorted.
+    fn dilate(&self, level: u32, cells: &[u64]) -> Vec<u64> {
+        let n = self.cells_at(level) as i64;
+        let mut out = Vec::with_capacity(cells.len() * 8);
+        for &k in cells {
+            let c = self.unkey_cell(level, k);
+            for dz in -1i64..=1 {
+                for dy in -1i64..=1 {
+                    for dx in -1i64..=1 {
+                        let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
+                        if q.iter().all(|&x| (0..n).contains(&x)) {
+                            out.push(self.key_cell(level, [q[0] as u32, q[1] as u32, q[2] as u32]));
+                        }
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// From `frontier` (newly active finest cells), finds the neighbours across faces with a
+    /// sign change that are not active yet, and queues their unknown corners; the stage
+    /// becomes `Closure` with those cells, or `Done` when there are none.
+    fn start_closure(&mut self, frontier: Vec<u64>) {
+        let level = self.plan.levels;
+        let r = self.plan.resolution as i64;
+        let mut next: Vec<u64> = Vec::new();
+        for k in frontier {
+            let c = self.unkey_cell(level, k);
+            let v = self.cell_values(level, c).unwrap();
+            for a in 0..3usize {
+                for side in 0..2usize {
+                    // Corners of the face: bit a == side.
+                    let mut inside = 0;
+                    for (i, &x) in v.iter().enumerate() {
+                        if (i >> a) & 1 == side && x > 0.0 {
+                            inside += 1;
+                        }
+                    }
+                    if inside == 0 || inside == 4 {
+                        continue;
+                    }
+                    let mut q = [c[0] as i64, c[1] as i64, c[2] as i64];
+                    q[a] += if side == 1 { 1 } else { -1 };
+                    if !(0..r).contains(&q[a]) {
+                        continue; // cannot happen: boundary faces are all outside
+                    }
+                    let qk = self.key_cell(level, [q[0] as u32, q[1] as u32, q[2] as u32]);
+                    if !self.active.contains(&qk) {
+                        next.push(qk);
+                    }
+                }
+            }
+        }
+        next.sort_unstable();
+        next.dedup();
+        if next.is_empty() {
+            self.stage = Stage::Done;
+            return;
+        }
+        for &k in &next {
+            let c = self.unkey_cell(level, k);
+            self.ask_cell(level, c);
+        }
+        if !self.pending_keys.is_empty() {
+            self.stats.closure_rounds += 1;
+        }
+        self.stage = Stage::Closure { cells: next };
+    }
+}
