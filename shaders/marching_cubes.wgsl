@@ -9,29 +9,28 @@
 // Corner c of a cell is at offset (c & 1, c >> 1 & 1, c >> 2 & 1); inside means value > 0.
 // Edge e runs along axis a = e / 4 from its low corner, whose bit (a+1)%3 is e & 1 and bit
 // (a+2)%3 is (e >> 1) & 1. The key of an edge crossing is 3 * (x + (R+1) (y + (R+1) z)) + a
-// for the edge's low corner (x, y, z); a loop centre's key is 0x80000000 | (4 * cell + loop).
+// for the edge's low corner (x, y, z).
 // Work is 1-D: index = gid.x + gid.y * num_workgroups.x * WG.
 
 struct Params {
     n_cells: u32,
     resolution: u32,
     stride: u32,      // u32 words per case in `table`
-    cell_base: u32,   // index of this block's first cell in the whole list (for centre keys)
+    _pad: u32,
     lo: vec4<f32>,    // domain min (xyz)
     ext: vec4<f32>,   // domain max - min (xyz)
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> values: array<f32>;      // 8 per cell
-@group(0) @binding(2) var<storage, read> table: array<u32>;       // [count, 4 centre masks, 3 * max_tris ids] per case
+@group(0) @binding(2) var<storage, read> table: array<u32>;       // [count, 3 * max_tris edge ids] per case
 @group(0) @binding(3) var<storage, read_write> classes: array<u32>; // case | count << 8 per cell
 @group(0) @binding(4) var<storage, read> cells: array<u32>;       // x, y, z per cell
 @group(0) @binding(5) var<storage, read> offsets: array<u32>;     // first triangle per cell
 @group(0) @binding(6) var<storage, read_write> soup: array<u32>;   // 4 words per vertex
 
 const WG: u32 = 64u;
-const HEADER: u32 = 5u;
-const CENTER_KEY: u32 = 0x80000000u;
+const HEADER: u32 = 1u;
 
 fn linear_index(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return gid.x + gid.y * nwg.x * WG;
@@ -72,8 +71,8 @@ fn emit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let r = f32(params.resolution);
     let n = params.resolution + 1u;
 
-    var key: array<u32, 16>;
-    var pos: array<vec3<f32>, 16>;
+    var key: array<u32, 12>;
+    var pos: array<vec3<f32>, 12>;
     for (var e = 0u; e < 12u; e++) {
         let a = e / 4u;
         let lo_c = ((e & 1u) << ((a + 1u) % 3u)) | (((e >> 1u) & 1u) << ((a + 2u) % 3u));
@@ -91,22 +90,6 @@ fn emit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         key[e] = 3u * (g.x + n * (g.y + n * g.z)) + a;
     }
     let base = c * params.stride;
-    for (var j = 0u; j < 4u; j++) {
-        let mask = table[base + 1u + j];
-        if (mask == 0u) {
-            continue;
-        }
-        var sum = vec3<f32>(0.0);
-        var count = 0u;
-        for (var e = 0u; e < 12u; e++) {
-            if (((mask >> e) & 1u) == 1u) {
-                sum += pos[e];
-                count++;
-            }
-        }
-        pos[12u + j] = sum / f32(count);
-        key[12u + j] = CENTER_KEY | (4u * (params.cell_base + i) + j);
-    }
     let first_tri = offsets[i];
     for (var t = 0u; t < ntris; t++) {
         for (var k = 0u; k < 3u; k++) {

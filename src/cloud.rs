@@ -54,3 +54,124 @@ impl PointCloud {
         Some(b)
     }
 }
+
+/// Why a cloud cannot be reconstructed at all.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CloudError {
+    /// Fewer points than any surface needs.
+    TooFewPoints { count: usize, needed: usize },
+    /// Every point at one position (or the bounds are not finite).
+    Degenerate,
+}
+
+impl std::fmt::Display for CloudError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CloudError::TooFewPoints { count, needed } => {
+                write!(f, "the cloud has {count} point(s); a surface needs at least {needed}")
+            }
+            CloudError::Degenerate => write!(f, "all points are at the same position: there is no surface to reconstruct"),
+        }
+    }
+}
+
+impl std::error::Error for CloudError {}
+
+/// The similarity that maps the user's coordinates to the network's unit cube (bounding-box
+/// centre at the origin, longest side 1) and back. Kept in f64 so large georeferenced offsets
+/// survive the round trip.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Normalization {
+    pub center: [f64; 3],
+    pub scale: f64,
+}
+
+impl Normalization {
+    /// Fewest points accepted for reconstruction.
+    pub const MIN_POINTS: usize = 4;
+
+    /// The normalisation of `cloud`, or why it has none.
+    pub fn of(cloud: &PointCloud) -> Result<Normalization, CloudError> {
+        if cloud.len() < Self::MIN_POINTS {
+            return Err(CloudError::TooFewPoints { count: cloud.len(), needed: Self::MIN_POINTS });
+        }
+        let b = cloud.bounds().ok_or(CloudError::TooFewPoints { count: 0, needed: Self::MIN_POINTS })?;
+        let center = [0, 1, 2].map(|a| 0.5 * (b.min[a] as f64 + b.max[a] as f64));
+        let scale = (0..3).map(|a| b.max[a] as f64 - b.min[a] as f64).fold(0.0, f64::max);
+        if !(scale > 0.0 && scale.is_finite()) {
+            return Err(CloudError::Degenerate);
+        }
+        Ok(Normalization { center, scale })
+    }
+
+    /// User coordinates → unit cube.
+    pub fn forward(&self, p: [f32; 3]) -> [f32; 3] {
+        [0, 1, 2].map(|a| ((p[a] as f64 - self.center[a]) / self.scale) as f32)
+    }
+
+    /// Unit cube → user coordinates.
+    pub fn inverse(&self, p: [f32; 3]) -> [f32; 3] {
+        [0, 1, 2].map(|a| (p[a] as f64 * self.scale + self.center[a]) as f32)
+    }
+}
+
+/// At most `max` of `points`, chosen uniformly at random (seeded, so runs repeat), in their
+/// original order. Returns the input unchanged when it is small enough.
+pub fn subsample(points: &[[f32; 3]], max: usize, seed: u64) -> Vec<[f32; 3]> {
+    if points.len() <= max {
+        return points.to_vec();
+    }
+    // Selection sampling (Knuth's algorithm S): one pass, exact count, no index buffer.
+    let mut rng = crate::rng::SplitMix64(seed);
+    let mut out = Vec::with_capacity(max);
+    let n = points.len();
+    for (i, p) in points.iter().enumerate() {
+        let needed = max - out.len();
+        if needed == 0 {
+            break;
+        }
+        if ((n - i) as f64) * rng.unit() < needed as f64 {
+            out.push(*p);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud(points: Vec<[f32; 3]>) -> PointCloud {
+        PointCloud { positions: points, ..Default::default() }
+    }
+
+    #[test]
+    fn normalization_round_trips_and_fits_the_unit_cube() {
+        let c = cloud(vec![[10.0, 20.0, 30.0], [12.0, 21.0, 30.5], [11.0, 20.5, 30.0], [10.5, 20.0, 30.2]]);
+        let n = Normalization::of(&c).unwrap();
+        assert_eq!(n.scale, 2.0);
+        for p in &c.positions {
+            let q = n.forward(*p);
+            assert!(q.iter().all(|v| v.abs() <= 0.5 + 1e-6), "{q:?}");
+            let back = n.inverse(q);
+            for a in 0..3 {
+                assert!((back[a] - p[a]).abs() < 1e-5);
+            }
+        }
+    }
+
+    #[test]
+    fn degenerate_clouds_are_errors() {
+        assert_eq!(Normalization::of(&cloud(vec![[1.0; 3]])), Err(CloudError::TooFewPoints { count: 1, needed: 4 }));
+        assert_eq!(Normalization::of(&cloud(vec![[1.0; 3]; 10])), Err(CloudError::Degenerate));
+    }
+
+    #[test]
+    fn subsample_keeps_exactly_max_points_in_order() {
+        let pts: Vec<[f32; 3]> = (0..1000).map(|i| [i as f32, 0.0, 0.0]).collect();
+        let s = subsample(&pts, 100, 7);
+        assert_eq!(s.len(), 100);
+        assert!(s.windows(2).all(|w| w[0][0] < w[1][0]));
+        assert_eq!(subsample(&pts, 5000, 7).len(), 1000);
+    }
+}

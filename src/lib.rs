@@ -7,8 +7,12 @@
 pub mod cloud;
 pub mod gpu;
 pub mod io;
+pub mod krr;
 pub mod mesh;
 pub mod net;
+pub mod pipeline;
+pub mod rng;
+pub mod sample;
 
 #[cfg(target_arch = "wasm32")]
 pub mod web;

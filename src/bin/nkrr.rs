@@ -7,6 +7,12 @@ nkrr — surface reconstruction from raw point clouds
 
 USAGE:
     nkrr info CLOUD.ply     point count, bounds, properties found, warnings
+    nkrr reconstruct CLOUD.ply -o OUT.glb [OPTIONS]
+                            a watertight mesh of the cloud, as glTF binary
+        --method network|nkrr      field to mesh (network: the prior alone)  [network]
+        --resolution N             marching-cubes resolution (16..=1024)     [128]
+        --remove-small F           drop components below F x the largest's triangle count
+        --max-points N             subsample larger clouds for the encoder   [100000]
     nkrr gpu                the GPU adapter wgpu finds here and its limits
     nkrr --help | --version
 ";
@@ -18,6 +24,7 @@ fn main() -> ExitCode {
             [path] => info(path),
             _ => Err(usage("info takes exactly one PLY path")),
         },
+        Some("reconstruct") => reconstruct(&args[1..]),
         Some("gpu") => gpu(),
         Some("-h" | "--help" | "help") => {
             print!("{USAGE}");
@@ -82,4 +89,90 @@ fn gpu() -> Result<(), Failure> {
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
     println!("{}", gpu.describe());
     Ok(())
+}
+
+fn reconstruct(args: &[String]) -> Result<(), Failure> {
+    use nkrr::pipeline::{Engine, Settings, Stage};
+    let mut settings = Settings::default();
+    let mut input = None;
+    let mut output = None;
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut value = |name: &str| it.next().cloned().ok_or_else(|| usage(&format!("{name} needs a value")));
+        match a.as_str() {
+            "-o" | "--output" => output = Some(value(a)?),
+            "--method" => settings.method = value(a)?.parse().map_err(|e: String| usage(&e))?,
+            "--resolution" => {
+                let r: u32 = parse(&value(a)?, a)?;
+                if !(16..=1024).contains(&r) {
+                    return Err(usage("--resolution must be between 16 and 1024"));
+                }
+                settings.resolution = r;
+            }
+            "--remove-small" => {
+                let f: f32 = parse(&value(a)?, a)?;
+                if !(0.0..=1.0).contains(&f) {
+                    return Err(usage("--remove-small must be between 0 and 1"));
+                }
+                settings.remove_small_components = Some(f);
+            }
+            "--max-points" => settings.max_points = parse::<usize>(&value(a)?, a)?.max(1),
+            s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
+            s if input.is_none() => input = Some(s.to_string()),
+            s => return Err(usage(&format!("unexpected argument '{s}'"))),
+        }
+    }
+    let input = input.ok_or_else(|| usage("reconstruct needs an input PLY"))?;
+    let output = output.ok_or_else(|| usage("reconstruct needs -o OUT.glb"))?;
+    if !output.to_ascii_lowercase().ends_with(".glb") {
+        return Err(usage("only .glb output is supported so far"));
+    }
+
+    let t0 = nkrr::pipeline::now();
+    let bytes = std::fs::read(&input).map_err(|e| fail(format!("cannot read {input}: {e}")))?;
+    let parsed = nkrr::io::ply::read_ply(&bytes).map_err(|e| fail(format!("{input}: {e}")))?;
+    for w in parsed.warnings() {
+        eprintln!("warning: {w}");
+    }
+    eprintln!("read {} points from {input}", parsed.cloud.len());
+    let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
+    eprintln!("GPU: {}", gpu.info.name);
+    let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
+    let mut last = String::new();
+    let mut report = |s: &Stage| {
+        let line = match s {
+            Stage::Features => "computing features".to_string(),
+            Stage::Meshing { evaluated } => format!("meshing: {evaluated} field evaluations"),
+            Stage::Done => "done".to_string(),
+        };
+        if line != last {
+            eprintln!("{line}");
+            last = line;
+        }
+        true
+    };
+    let rec = pollster::block_on(engine.reconstruct(&parsed.cloud, &settings, &mut report))
+        .map_err(|e| fail(format!("{input}: {e}")))?;
+    for n in &rec.notices {
+        eprintln!("notice: {n}");
+    }
+    let name = std::path::Path::new(&input).file_stem().map(|s| s.to_string_lossy().into_owned());
+    let (glb, glb_report) = nkrr::io::gltf::write_glb_with_report(&rec.mesh, &nkrr::io::gltf::GlbOptions { name, ..Default::default() })
+        .map_err(|e| fail(format!("writing {output}: {e}")))?;
+    std::fs::write(&output, &glb).map_err(|e| fail(format!("cannot write {output}: {e}")))?;
+    let times: Vec<String> = rec.timings.iter().map(|(s, t)| format!("{s} {t:.2}s")).collect();
+    println!(
+        "{output}: {} vertices, {} triangles, watertight: {}; {} (total {:.2}s); {} field evaluations",
+        glb_report.vertices_written,
+        glb_report.triangles_written,
+        if rec.mesh.is_watertight() { "yes" } else { "no" },
+        times.join(", "),
+        nkrr::pipeline::now() - t0,
+        rec.extract.refine.evaluations,
+    );
+    Ok(())
+}
+
+fn parse<T: std::str::FromStr>(s: &str, name: &str) -> Result<T, Failure> {
+    s.parse().map_err(|_| usage(&format!("{name}: '{s}' is not a valid value")))
 }

@@ -95,9 +95,8 @@ pub fn remove_small_components(mesh: &mut Mesh, fraction: f32) -> Removal {
             next += 1;
         }
     }
-    let pick = |v: &Vec<[f32; 3]>| -> Vec<[f32; 3]> {
-        v.iter().zip(&used).filter(|(_, &u)| u).map(|(p, _)| *p).collect()
-    };
+    let pick =
+        |v: &Vec<[f32; 3]>| -> Vec<[f32; 3]> { v.iter().zip(&used).filter(|(_, &u)| u).map(|(p, _)| *p).collect() };
     mesh.positions = pick(&mesh.positions);
     if mesh.normals.len() == n {
         mesh.normals = pick(&mesh.normals);

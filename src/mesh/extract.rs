@@ -34,7 +34,10 @@ pub struct ExtractStats {
 }
 
 /// The coarse-to-fine search with a blocking field.
-pub fn refine<F: Field + ?Sized>(field: &mut F, opts: &ExtractOptions) -> Result<(ActiveCells, RefineStats), ExtractError> {
+pub fn refine<F: Field + ?Sized>(
+    field: &mut F,
+    opts: &ExtractOptions,
+) -> Result<(ActiveCells, RefineStats), ExtractError> {
     let mut r = Refiner::new(opts)?;
     while let Some(points) = r.pending() {
         let values = field.eval(points)?;
@@ -45,7 +48,10 @@ pub fn refine<F: Field + ?Sized>(field: &mut F, opts: &ExtractOptions) -> Result
 
 /// The coarse-to-fine search with an asynchronous field: `eval(points)` resolves to their
 /// values.
-pub async fn refine_async<E, Fut>(mut eval: E, opts: &ExtractOptions) -> Result<(ActiveCells, RefineStats), ExtractError>
+pub async fn refine_async<E, Fut>(
+    mut eval: E,
+    opts: &ExtractOptions,
+) -> Result<(ActiveCells, RefineStats), ExtractError>
 where
     E: FnMut(Vec<[f32; 3]>) -> Fut,
     Fut: Future<Output = Result<Vec<f32>, FieldError>>,
@@ -104,7 +110,11 @@ where
 
 /// Blocking [`extract_gpu_async`] for native code.
 #[cfg(not(target_arch = "wasm32"))]
-pub fn extract_gpu<F: Field + ?Sized>(gpu: &Gpu, field: &mut F, opts: &ExtractOptions) -> Result<Extraction, ExtractError> {
+pub fn extract_gpu<F: Field + ?Sized>(
+    gpu: &Gpu,
+    field: &mut F,
+    opts: &ExtractOptions,
+) -> Result<Extraction, ExtractError> {
     let (cells, stats) = refine(field, opts)?;
     let mesh = pollster::block_on(MarchingCubesGpu::new(gpu).polygonize(gpu, &cells))?;
     Ok(assemble(mesh, stats, opts, true))

@@ -6,16 +6,12 @@
 //! `(key, position)` vertices. The key of an edge crossing is its global edge id
 //! `3 * (x + (R+1) (y + (R+1) z)) + axis` (the edge's low corner and axis), so the cells
 //! around an edge give its crossing the same key; the position is computed from the edge's own
-//! two corner values, low to high, so it is the same for all of them too. The key of a loop's
-//! centre vertex (rare, see `tables`) is [`CENTER_KEY`] plus `4 * cell index + loop`, private to
-//! its cell. Welding by key then joins the cells into one indexed mesh.
+//! two corner values, low to high, so it is the same for all of them too. Welding by key then
+//! joins the cells into one indexed mesh.
 
 use super::refine::{ActiveCells, KeyMap};
 use super::tables::{edge_axis, edge_corners, CaseTable};
 use super::Mesh;
-
-/// Keys at or above this are loop centres, not edge crossings.
-pub const CENTER_KEY: u64 = 1 << 63;
 
 /// Marching cubes case index of 8 corner values: bit `c` set when corner `c` is inside (`> 0`).
 pub fn case_index(v: &[f32; 8]) -> usize {
@@ -40,9 +36,8 @@ fn crossing(cell: [u32; 3], v: &[f32; 8], e: usize, resolution: u32, domain: &([
 }
 
 /// The triangle soup of one cell, appended to `keys` / `positions` (three entries per
-/// triangle). `index` is the cell's position in its list (for centre keys).
+/// triangle).
 pub fn emit_cell(
-    index: usize,
     cell: [u32; 3],
     v: &[f32; 8],
     resolution: u32,
@@ -54,26 +49,12 @@ pub fn emit_cell(
     if case.triangles.is_empty() {
         return;
     }
-    let mut local = [(0u64, [0.0f32; 3]); 16];
-    for (e, slot) in local.iter_mut().enumerate().take(12) {
+    let mut local = [(0u64, [0.0f32; 3]); 12];
+    for (e, slot) in local.iter_mut().enumerate() {
         let (a, b) = edge_corners(e);
         if (v[a] > 0.0) != (v[b] > 0.0) {
             *slot = crossing(cell, v, e, resolution, domain);
         }
-    }
-    for (j, &mask) in case.centers.iter().enumerate() {
-        let mut sum = [0.0f32; 3];
-        let mut count = 0u32;
-        for (e, l) in local.iter().enumerate().take(12) {
-            if mask >> e & 1 == 1 {
-                for k in 0..3 {
-                    sum[k] += l.1[k];
-                }
-                count += 1;
-            }
-        }
-        let c = count as f32;
-        local[12 + j] = (CENTER_KEY | (4 * index as u64 + j as u64), sum.map(|s| s / c));
     }
     for tri in &case.triangles {
         for &lv in tri {
@@ -107,8 +88,8 @@ pub fn weld(keys: &[u64], positions: &[[f32; 3]]) -> Mesh {
 pub fn soup(cells: &ActiveCells) -> (Vec<u64>, Vec<[f32; 3]>) {
     let mut keys = Vec::new();
     let mut positions = Vec::new();
-    for (i, (c, v)) in cells.cells.iter().zip(&cells.values).enumerate() {
-        emit_cell(i, *c, v, cells.resolution, &cells.domain, &mut keys, &mut positions);
+    for (c, v) in cells.cells.iter().zip(&cells.values) {
+        emit_cell(*c, v, cells.resolution, &cells.domain, &mut keys, &mut positions);
     }
     (keys, positions)
 }

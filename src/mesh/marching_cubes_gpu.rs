@@ -8,7 +8,7 @@
 //! hash map): the soup is small next to the field evaluations, and this keeps the vertex order
 //! identical to the CPU path's.
 
-use super::marching_cubes::{weld, CENTER_KEY};
+use super::marching_cubes::weld;
 use super::refine::ActiveCells;
 use super::tables::CaseTable;
 use super::Mesh;
@@ -17,8 +17,8 @@ use crate::gpu::{Gpu, GpuError};
 const SHADER: &str = include_str!("../../shaders/marching_cubes.wgsl");
 const WG: u32 = 64;
 
-/// The largest resolution the GPU kernels take: edge keys `3 (R+1)³` must stay below 2³¹.
-pub const GPU_MAX_RESOLUTION: u32 = 892;
+/// The largest resolution the GPU kernels take: edge keys `3 (R+1)³` must fit 32 bits.
+pub const GPU_MAX_RESOLUTION: u32 = 1124;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -26,7 +26,7 @@ struct Params {
     n_cells: u32,
     resolution: u32,
     stride: u32,
-    cell_base: u32,
+    _pad: u32,
     lo: [f32; 4],
     ext: [f32; 4],
 }
@@ -74,7 +74,7 @@ impl MarchingCubesGpu {
                 n_cells: n as u32,
                 resolution: cells.resolution,
                 stride: self.stride,
-                cell_base: base as u32,
+                _pad: 0,
                 lo: [lo[0], lo[1], lo[2], 0.0],
                 ext: [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 0.0],
             };
@@ -108,8 +108,7 @@ impl MarchingCubesGpu {
                 keys.reserve(words / 4);
                 positions.reserve(words / 4);
                 for w in out.chunks_exact(4) {
-                    let k = w[0] as u64;
-                    keys.push(if k & 0x8000_0000 != 0 { CENTER_KEY | (k & 0x7fff_ffff) } else { k });
+                    keys.push(w[0] as u64);
                     positions.push([f32::from_bits(w[1]), f32::from_bits(w[2]), f32::from_bits(w[3])]);
                 }
             }

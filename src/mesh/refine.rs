@@ -23,7 +23,7 @@
 //! at most 0, so the surface closes along the boundary where the field is positive there.
 //! Non-finite values are made finite: NaN counts as outside (0), ±∞ as ±1e30.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::fmt;
 use std::hash::{BuildHasherDefault, Hasher};
 
@@ -94,17 +94,15 @@ pub struct ExtractOptions {
 
 impl Default for ExtractOptions {
     fn default() -> Self {
-        ExtractOptions {
-            resolution: 128,
-            coarse: 32,
-            domain: ([-0.55; 3], [0.55; 3]),
-            remove_small_components: None,
-        }
+        ExtractOptions { resolution: 128, coarse: 32, domain: ([-0.55; 3], [0.55; 3]), remove_small_components: None }
     }
 }
 
 /// The largest supported `resolution` (corner coordinates must fit 32-bit keys on the GPU).
 pub const MAX_RESOLUTION: u32 = 1024;
+
+/// The most corners the coarse grid (evaluated densely, in one batch) may have: 257³.
+pub const MAX_COARSE_CORNERS: u64 = 257 * 257 * 257;
 
 /// Why extraction failed.
 #[derive(Debug)]
@@ -178,9 +176,15 @@ impl Plan {
         }
         let mut coarse = opts.resolution;
         let mut levels = 0;
-        while coarse % 2 == 0 && coarse / 2 >= opts.coarse {
+        while coarse.is_multiple_of(2) && coarse / 2 >= opts.coarse {
             coarse /= 2;
             levels += 1;
+        }
+        if (coarse as u64 + 1).pow(3) > MAX_COARSE_CORNERS {
+            return bad(format!(
+                "the coarse grid would have {coarse}^3 cells, evaluated densely in one batch: too many \
+                 (lower `coarse`)"
+            ));
         }
         Ok(Plan { resolution: opts.resolution, coarse, levels })
     }
@@ -303,19 +307,26 @@ impl Hasher for KeyHasher {
 }
 
 pub(crate) type KeyMap<V> = HashMap<u64, V, BuildHasherDefault<KeyHasher>>;
-pub(crate) type KeySet = HashSet<u64, BuildHasherDefault<KeyHasher>>;
 
 #[derive(Debug)]
 enum Stage {
-    /// Waiting for the values of `pending`; then continue at refinement level `level`
-    /// (`0` = the coarse grid) with `cells` (cells of that level, sorted, deduplicated; unused
-    /// for level 0, which is every cell).
-    Level { level: u32, cells: Vec<u64> },
+    /// Waiting for the values of `pending`; then continue at refinement level `level`: the
+    /// coarse grid (every cell) for 0, else the children of `parents` (marked cells of level
+    /// `level - 1`, sorted and deduplicated).
+    Level {
+        level: u32,
+        parents: Vec<u64>,
+    },
     /// Waiting for the values of `pending` for the closing step; `cells` are the finest cells
     /// being added.
-    Closure { cells: Vec<u64> },
+    Closure {
+        cells: Vec<u64>,
+    },
     Done,
 }
+
+/// Marker for a corner queued for evaluation (replaced by its value in `supply`).
+const QUEUED: f32 = f32::NAN;
 
 /// The coarse-to-fine search as a state machine: while [`Refiner::pending`] is `Some(points)`,
 /// evaluate the field there and [`Refiner::supply`] the values (same order); then
@@ -332,14 +343,17 @@ enum Stage {
 pub struct Refiner {
     plan: Plan,
     domain: ([f32; 3], [f32; 3]),
-    /// Known corner values by finest corner key `x + (R+1) (y + (R+1) z)`, already clamped.
+    /// Known corner values by finest corner key `x + (R+1) (y + (R+1) z)`, already clamped
+    /// ([`QUEUED`] while being evaluated).
     known: KeyMap<f32>,
     /// Keys and positions of the batch being asked for.
     pending_keys: Vec<u64>,
     pending_points: Vec<[f32; 3]>,
     stage: Stage,
-    /// Active finest cells (key `x + R (y + R z)`).
-    active: KeySet,
+    /// Active finest cells (key `x + R (y + R z)`) and their corner values.
+    active: KeyMap<[f32; 8]>,
+    /// The coarse lattice's values, `x + (n+1) (y + (n+1) z)`.
+    coarse_values: Vec<f32>,
     stats: RefineStats,
 }
 
@@ -353,8 +367,9 @@ impl Refiner {
             known: KeyMap::default(),
             pending_keys: Vec::new(),
             pending_points: Vec::new(),
-            stage: Stage::Level { level: 0, cells: Vec::new() },
-            active: KeySet::default(),
+            stage: Stage::Level { level: 0, parents: Vec::new() },
+            active: KeyMap::default(),
+            coarse_values: vec![0.0; (plan.coarse as usize + 1).pow(3)],
             stats: RefineStats {
                 plan_coarse: plan.coarse,
                 levels: plan.levels,
@@ -365,6 +380,7 @@ impl Refiner {
         // The coarse grid: every corner.
         let s = me.scale(0);
         let n = plan.coarse;
+        me.known.reserve(((n + 1) as usize).pow(3) * 4);
         for z in 0..=n {
             for y in 0..=n {
                 for x in 0..=n {
@@ -402,9 +418,14 @@ impl Refiner {
         }
         let keys = std::mem::take(&mut self.pending_keys);
         self.pending_points.clear();
-        for (&k, &v) in keys.iter().zip(values) {
+        let coarse = matches!(self.stage, Stage::Level { level: 0, .. });
+        for (i, (&k, &v)) in keys.iter().zip(values).enumerate() {
             let at = self.unkey_corner(k);
-            self.known.insert(k, corner_value(v, at, self.plan.resolution));
+            let v = corner_value(v, at, self.plan.resolution);
+            self.known.insert(k, v);
+            if coarse {
+                self.coarse_values[i] = v; // the coarse batch is the whole lattice, x fastest
+            }
         }
         self.stats.evaluations += keys.len() as u64;
         self.stats.batches += 1;
@@ -419,19 +440,14 @@ impl Refiner {
             return Err(ExtractError::Protocol("finish() before the search is done".into()));
         }
         let r = self.plan.resolution as u64;
-        let mut keys: Vec<u64> = self.active.iter().copied().collect();
-        keys.sort_unstable();
-        let mut out = ActiveCells {
+        let mut cells: Vec<(u64, [f32; 8])> = self.active.into_iter().collect();
+        cells.sort_unstable_by_key(|c| c.0);
+        let out = ActiveCells {
             resolution: self.plan.resolution,
             domain: self.domain,
-            cells: Vec::with_capacity(keys.len()),
-            values: Vec::with_capacity(keys.len()),
+            cells: cells.iter().map(|&(k, _)| [(k % r) as u32, (k / r % r) as u32, (k / (r * r)) as u32]).collect(),
+            values: cells.into_iter().map(|(_, v)| v).collect(),
         };
-        for k in keys {
-            let c = [(k % r) as u32, (k / r % r) as u32, (k / (r * r)) as u32];
-            out.values.push(self.cell_values(self.plan.levels, c).expect("active cells are known"));
-            out.cells.push(c);
-        }
         let mut stats = self.stats;
         stats.active_cells = out.cells.len();
         Ok((out, stats))
@@ -468,33 +484,37 @@ impl Refiner {
     /// Queues a corner (finest coordinates) for evaluation unless known or queued.
     fn ask(&mut self, at: [u32; 3]) {
         let k = self.key_corner(at);
-        if self.known.contains_key(&k) {
-            return;
+        if let std::collections::hash_map::Entry::Vacant(e) = self.known.entry(k) {
+            e.insert(QUEUED);
+            self.pending_keys.push(k);
+            let p = self.position(at);
+            self.pending_points.push(p);
         }
-        // Mark as queued with a NaN placeholder, overwritten by supply().
-        self.known.insert(k, f32::NAN);
-        self.pending_keys.push(k);
-        let p = self.position(at);
-        self.pending_points.push(p);
     }
 
-    /// Queues the unknown corners of cell `c` at `level`.
-    fn ask_cell(&mut self, level: u32, c: [u32; 3]) {
-        let s = self.scale(level);
-        for i in 0..8u32 {
-            self.ask([(c[0] + (i & 1)) * s, (c[1] + (i >> 1 & 1)) * s, (c[2] + (i >> 2 & 1)) * s]);
+    /// Fills `out` with the values at the `m³` corners `origin + step * (i, j, k)`, `i, j, k`
+    /// in `0..m` (index `i + m (j + m k)`), in finest coordinates; false if one is unknown.
+    fn lattice(&self, origin: [u32; 3], step: u32, m: u32, out: &mut [f32]) -> bool {
+        let mut idx = 0;
+        for k in 0..m {
+            for j in 0..m {
+                for i in 0..m {
+                    let at = [origin[0] + i * step, origin[1] + j * step, origin[2] + k * step];
+                    match self.known.get(&self.key_corner(at)) {
+                        Some(&v) => out[idx] = v,
+                        None => return false,
+                    }
+                    idx += 1;
+                }
+            }
         }
+        true
     }
 
     fn cell_values(&self, level: u32, c: [u32; 3]) -> Option<[f32; 8]> {
         let s = self.scale(level);
         let mut v = [0.0f32; 8];
-        for (i, vi) in v.iter_mut().enumerate() {
-            let i = i as u32;
-            let at = [(c[0] + (i & 1)) * s, (c[1] + (i >> 1 & 1)) * s, (c[2] + (i >> 2 & 1)) * s];
-            *vi = *self.known.get(&self.key_corner(at))?;
-        }
-        Some(v)
+        self.lattice(c.map(|x| x * s), s, 2, &mut v).then_some(v)
     }
 
     fn key_cell(&self, level: u32, c: [u32; 3]) -> u64 {
@@ -512,41 +532,72 @@ impl Refiner {
         loop {
             match std::mem::replace(&mut self.stage, Stage::Done) {
                 Stage::Done => return,
-                Stage::Level { level, cells } => {
-                    // Cells of this level whose corners are all known now.
-                    let cells = if level == 0 {
-                        let n = self.plan.coarse as u64;
-                        (0..n * n * n).collect()
-                    } else {
-                        cells
-                    };
-                    let changing: Vec<u64> = cells
-                        .iter()
-                        .copied()
-                        .filter(|&k| {
-                            let v = self.cell_values(level, self.unkey_cell(level, k)).unwrap();
-                            has_sign_change(&v)
-                        })
-                        .collect();
-                    if level == self.plan.levels {
-                        self.active.extend(changing.iter().copied());
-                        self.start_closure(changing);
-                    } else {
-                        let marked = self.dilate(level, &changing);
-                        let mut children = Vec::with_capacity(marked.len() * 8);
-                        for k in marked {
-                            let c = self.unkey_cell(level, k);
-                            for i in 0..8u32 {
-                                let child = [2 * c[0] + (i & 1), 2 * c[1] + (i >> 1 & 1), 2 * c[2] + (i >> 2 & 1)];
-                                children.push(self.key_cell(level + 1, child));
+                Stage::Level { level, parents } => {
+                    // The cells of this level with a sign change, and their values.
+                    let mut changing: Vec<(u64, [f32; 8])> = Vec::new();
+                    if level == 0 {
+                        let n = self.plan.coarse;
+                        let m = n as usize + 1;
+                        let lat = std::mem::take(&mut self.coarse_values);
+                        for z in 0..n {
+                            for y in 0..n {
+                                for x in 0..n {
+                                    let v: [f32; 8] = std::array::from_fn(|c| {
+                                        let (i, j, k) = (
+                                            x as usize + (c & 1),
+                                            y as usize + (c >> 1 & 1),
+                                            z as usize + (c >> 2 & 1),
+                                        );
+                                        lat[i + m * (j + m * k)]
+                                    });
+                                    if has_sign_change(&v) {
+                                        changing.push((self.key_cell(0, [x, y, z]), v));
+                                    }
+                                }
                             }
                         }
-                        children.sort_unstable();
-                        for &k in &children {
-                            let c = self.unkey_cell(level + 1, k);
-                            self.ask_cell(level + 1, c);
+                    } else {
+                        // Each parent's 3x3x3 corners at this level's spacing cover its children.
+                        let s = self.scale(level);
+                        let mut lat = [0.0f32; 27];
+                        for &pk in &parents {
+                            let p = self.unkey_cell(level - 1, pk);
+                            let known = self.lattice(p.map(|x| x * 2 * s), s, 3, &mut lat);
+                            assert!(known, "the children's corners were asked for");
+                            for i in 0..8u32 {
+                                let (dx, dy, dz) = (i & 1, i >> 1 & 1, i >> 2 & 1);
+                                let v: [f32; 8] = std::array::from_fn(|c| {
+                                    let c = c as u32;
+                                    let (x, y, z) = (dx + (c & 1), dy + (c >> 1 & 1), dz + (c >> 2 & 1));
+                                    lat[(x + 3 * (y + 3 * z)) as usize]
+                                });
+                                if has_sign_change(&v) {
+                                    let child = [2 * p[0] + dx, 2 * p[1] + dy, 2 * p[2] + dz];
+                                    changing.push((self.key_cell(level, child), v));
+                                }
+                            }
                         }
-                        self.stage = Stage::Level { level: level + 1, cells: children };
+                    }
+                    if level == self.plan.levels {
+                        let frontier: Vec<u64> = changing.iter().map(|c| c.0).collect();
+                        self.active.extend(changing);
+                        self.start_closure(frontier);
+                    } else {
+                        let keys: Vec<u64> = changing.iter().map(|c| c.0).collect();
+                        let marked = self.dilate(level, &keys);
+                        // The children's corners: each marked cell's 3x3x3 lattice one level down.
+                        let s = self.scale(level + 1);
+                        for &k in &marked {
+                            let c = self.unkey_cell(level, k);
+                            for z in 0..3 {
+                                for y in 0..3 {
+                                    for x in 0..3 {
+                                        self.ask([(2 * c[0] + x) * s, (2 * c[1] + y) * s, (2 * c[2] + z) * s]);
+                                    }
+                                }
+                            }
+                        }
+                        self.stage = Stage::Level { level: level + 1, parents: marked };
                     }
                 }
                 Stage::Closure { cells } => {
@@ -554,9 +605,9 @@ impl Refiner {
                     let mut added = Vec::with_capacity(cells.len());
                     for k in cells {
                         let c = self.unkey_cell(self.plan.levels, k);
-                        let v = self.cell_values(self.plan.levels, c).unwrap();
+                        let v = self.cell_values(self.plan.levels, c).expect("closing cells are known");
                         debug_assert!(has_sign_change(&v));
-                        if self.active.insert(k) {
+                        if self.active.insert(k, v).is_none() {
                             added.push(k);
                         }
                     }
@@ -569,7 +620,6 @@ impl Refiner {
             }
         }
     }
-
     /// The cells of `level` within one cell (26-neighbourhood) of `cells`, sorted.
     fn dilate(&self, level: u32, cells: &[u64]) -> Vec<u64> {
         let n = self.cells_at(level) as i64;
@@ -601,7 +651,7 @@ impl Refiner {
         let mut next: Vec<u64> = Vec::new();
         for k in frontier {
             let c = self.unkey_cell(level, k);
-            let v = self.cell_values(level, c).unwrap();
+            let v = self.active[&k];
             for a in 0..3usize {
                 for side in 0..2usize {
                     // Corners of the face: bit a == side.
@@ -620,7 +670,7 @@ impl Refiner {
                         continue; // cannot happen: boundary faces are all outside
                     }
                     let qk = self.key_cell(level, [q[0] as u32, q[1] as u32, q[2] as u32]);
-                    if !self.active.contains(&qk) {
+                    if !self.active.contains_key(&qk) {
                         next.push(qk);
                     }
                 }
@@ -632,9 +682,12 @@ impl Refiner {
             self.stage = Stage::Done;
             return;
         }
+        let s = self.scale(level);
         for &k in &next {
             let c = self.unkey_cell(level, k);
-            self.ask_cell(level, c);
+            for i in 0..8u32 {
+                self.ask([(c[0] + (i & 1)) * s, (c[1] + (i >> 1 & 1)) * s, (c[2] + (i >> 2 & 1)) * s]);
+            }
         }
         if !self.pending_keys.is_empty() {
             self.stats.closure_rounds += 1;

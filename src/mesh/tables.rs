@@ -7,8 +7,6 @@
 //! - edge `e` runs along axis `a = e / 4` from its low corner (bit `a` clear) to its high
 //!   corner; with `u = (a + 1) % 3` and `v = (a + 2) % 3`, the low corner has bit `u` equal to
 //!   `e & 1` and bit `v` equal to `(e >> 1) & 1`;
-//! - local vertex ids `0..12` are the edge crossings, `12..16` the centre vertices of loops that
-//!   need one (see below).
 //!
 //! How a case is built: on each of the 6 faces of the cube, walk the face boundary
 //! counter-clockwise as seen from outside the cube and list the sign changes: `A` where the walk
@@ -26,8 +24,9 @@
 //! Triangulating a loop: a fan from one of its vertices, except that a fan diagonal must not
 //! join two crossings on the same cube face (only possible across an ambiguous face): the
 //! neighbouring cell may have made the same diagonal, and then four triangles would share one
-//! edge. The apex is the first loop vertex whose fan has no such diagonal; when no vertex
-//! qualifies, the loop gets a centre vertex (the mean of its crossings) and a fan around it.
+//! edge. The apex is the first loop vertex whose fan has no such diagonal. (With this face rule
+//! every loop has such a vertex — the build asserts it — so no loop needs an extra centre
+//! vertex, and a cell makes at most 5 triangles, like the classic table.)
 
 use std::sync::OnceLock;
 
@@ -36,9 +35,8 @@ use std::sync::OnceLock;
 /// limit, at the price of sometimes bridging two parts that nearly touch.
 pub const CONNECT_INSIDE: bool = true;
 
-/// Words per case in [`CaseTable::gpu_words`] before the triangles: the triangle count and one
-/// edge mask per possible centre vertex.
-pub const GPU_HEADER: usize = 5;
+/// Words per case in [`CaseTable::gpu_words`] before the triangles: the triangle count.
+pub const GPU_HEADER: usize = 1;
 
 /// Endpoints `(low corner, high corner)` of edge `e`.
 pub const fn edge_corners(e: usize) -> (usize, usize) {
@@ -97,11 +95,8 @@ fn edge_face_mask(e: usize) -> u8 {
 /// The triangulation of one case.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Case {
-    /// Triangles as local vertex ids (`0..12` edges, `12 + j` the centre of `centers[j]`),
-    /// counter-clockwise seen from outside.
+    /// Triangles as edge ids, counter-clockwise seen from outside.
     pub triangles: Vec<[u8; 3]>,
-    /// For each centre vertex, the mask of the edges of its loop.
-    pub centers: Vec<u16>,
     /// The loops, as edge ids in order (for tests and documentation).
     pub loops: Vec<Vec<u8>>,
 }
@@ -132,17 +127,14 @@ impl CaseTable {
         GPU_HEADER + 3 * self.max_triangles
     }
 
-    /// The table as the GPU kernel reads it: per case, `[triangle count, centre edge mask × 4,
-    /// local vertex ids × 3 × max_triangles]` (unused slots zero).
+    /// The table as the GPU kernel reads it: per case, `[triangle count, edge ids × 3 ×
+    /// max_triangles]` (unused slots zero).
     pub fn gpu_words(&self) -> Vec<u32> {
         let stride = self.gpu_stride();
         let mut w = vec![0u32; 256 * stride];
         for (i, c) in self.cases.iter().enumerate() {
             let base = i * stride;
             w[base] = c.triangles.len() as u32;
-            for (j, &m) in c.centers.iter().enumerate() {
-                w[base + 1 + j] = m as u32;
-            }
             for (t, tri) in c.triangles.iter().enumerate() {
                 for k in 0..3 {
                     w[base + GPU_HEADER + 3 * t + k] = tri[k] as u32;
@@ -198,30 +190,17 @@ fn build_case(case: usize) -> Case {
     }
     let faces: Vec<u8> = (0..12).map(edge_face_mask).collect();
     let mut triangles = Vec::new();
-    let mut centers = Vec::new();
     for lp in &loops {
         let n = lp.len();
         assert!(n >= 3, "case {case}: loop of {n}");
-        let apex = (0..n).find(|&a| {
-            (2..n - 1).all(|i| faces[lp[a] as usize] & faces[lp[(a + i) % n] as usize] == 0)
-        });
-        match apex {
-            Some(a) => {
-                for i in 1..n - 1 {
-                    triangles.push([lp[a], lp[(a + i) % n], lp[(a + i + 1) % n]]);
-                }
-            }
-            None => {
-                let c = 12 + centers.len() as u8;
-                centers.push(lp.iter().fold(0u16, |m, &e| m | 1 << e));
-                for i in 0..n {
-                    triangles.push([c, lp[i], lp[(i + 1) % n]]);
-                }
-            }
+        let a = (0..n)
+            .find(|&a| (2..n - 1).all(|i| faces[lp[a] as usize] & faces[lp[(a + i) % n] as usize] == 0))
+            .unwrap_or_else(|| panic!("case {case}: loop {lp:?} has no fan without a diagonal on a face"));
+        for i in 1..n - 1 {
+            triangles.push([lp[a], lp[(a + i) % n], lp[(a + i + 1) % n]]);
         }
     }
-    assert!(centers.len() <= GPU_HEADER - 1);
-    Case { triangles, centers, loops }
+    Case { triangles, loops }
 }
 
 #[cfg(test)]

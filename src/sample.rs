@@ -1,0 +1,209 @@
+//! Training pairs for the kernel regression (paper eq. 6, Algorithm 1; method.md §2).
+//!
+//! Around every input point p the regression gets one extra point p~ = p + N(0, σ_p² I), with
+//! σ_p the distance from p to its k-th nearest input neighbour, as Neural-Pull samples its
+//! queries: dense regions get tight offsets, sparse ones wide, so the pseudo-labels l(p~) cover a
+//! band around the surface whose width follows the sampling density rather than a fixed scale.
+
+use crate::rng::SplitMix64;
+
+/// Default neighbour rank for σ_p (Neural-Pull uses about 50).
+pub const DEFAULT_K: usize = 50;
+
+/// Distance from each point to its k-th nearest other point (k clamped to n - 1). Exact: a
+/// uniform grid searched in growing rings, stopping once no unvisited cell can hold a closer
+/// point. Points must be finite.
+pub fn kth_neighbour_distance(points: &[[f32; 3]], k: usize) -> Vec<f32> {
+    let n = points.len();
+    if n < 2 {
+        return vec![0.0; n];
+    }
+    let k = k.clamp(1, n - 1);
+    let grid = Grid::new(points);
+    let mut best: Vec<f32> = Vec::with_capacity(k + 1); // squared distances, sorted ascending
+    let mut out = Vec::with_capacity(n);
+    for (i, p) in points.iter().enumerate() {
+        best.clear();
+        let c = grid.cell_of(p);
+        let mut ring = 0i64;
+        loop {
+            grid.for_ring(c, ring, |j| {
+                if j as usize == i {
+                    return;
+                }
+                let q = points[j as usize];
+                let d2 = (0..3).map(|a| (p[a] - q[a]) * (p[a] - q[a])).sum::<f32>();
+                if best.len() < k || d2 < best[k - 1] {
+                    let at = best.partition_point(|&b| b <= d2);
+                    best.insert(at, d2);
+                    best.truncate(k);
+                }
+            });
+            // Every cell beyond this ring is at least `ring * h` away from p's cell walls.
+            let reach = ring as f32 * grid.h;
+            if (best.len() == k && best[k - 1] <= reach * reach) || ring > grid.max_ring() {
+                break;
+            }
+            ring += 1;
+        }
+        out.push(best.get(k - 1).copied().unwrap_or(0.0).sqrt());
+    }
+    out
+}
+
+/// The extra points P~: one per input point, offset by a Gaussian of that point's k-th-neighbour
+/// distance. Seeded, so a reconstruction repeats.
+pub fn upsample(points: &[[f32; 3]], k: usize, seed: u64) -> Vec<[f32; 3]> {
+    let sigma = kth_neighbour_distance(points, k);
+    let mut rng = SplitMix64(seed);
+    points
+        .iter()
+        .zip(&sigma)
+        .map(|(p, &s)| [0, 1, 2].map(|a| p[a] + (s as f64 * rng.normal()) as f32))
+        .collect()
+}
+
+/// Points bucketed in a uniform grid (counting sort into CSR order).
+struct Grid {
+    min: [f32; 3],
+    h: f32,
+    dims: [i64; 3],
+    start: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl Grid {
+    fn new(points: &[[f32; 3]]) -> Grid {
+        let mut min = [f32::INFINITY; 3];
+        let mut max = [f32::NEG_INFINITY; 3];
+        for p in points {
+            for a in 0..3 {
+                min[a] = min[a].min(p[a]);
+                max[a] = max[a].max(p[a]);
+            }
+        }
+        let extent = (0..3).map(|a| max[a] - min[a]).fold(0.0f32, f32::max).max(1e-30);
+        // About two points per cell if they filled the box; surfaces fill far fewer cells, so
+        // occupied cells hold more, which is what a k-NN search with k ~ 50 wants.
+        let per_axis = ((points.len() as f64 / 2.0).cbrt().ceil() as i64).clamp(1, 256);
+        let h = extent / per_axis as f32;
+        let dims = [0, 1, 2].map(|a| (((max[a] - min[a]) / h) as i64 + 1).clamp(1, 257));
+        let mut grid = Grid { min, h, dims, start: Vec::new(), items: Vec::new() };
+        let cells = (dims[0] * dims[1] * dims[2]) as usize;
+        let ids: Vec<usize> = points.iter().map(|p| grid.index(grid.cell_of(p))).collect();
+        let mut start = vec![0u32; cells + 1];
+        for &c in &ids {
+            start[c + 1] += 1;
+        }
+        for c in 0..cells {
+            start[c + 1] += start[c];
+        }
+        let mut fill = start.clone();
+        let mut items = vec![0u32; points.len()];
+        for (i, &c) in ids.iter().enumerate() {
+            items[fill[c] as usize] = i as u32;
+            fill[c] += 1;
+        }
+        grid.start = start;
+        grid.items = items;
+        grid
+    }
+
+    fn cell_of(&self, p: &[f32; 3]) -> [i64; 3] {
+        [0, 1, 2].map(|a| (((p[a] - self.min[a]) / self.h) as i64).clamp(0, self.dims[a] - 1))
+    }
+
+    fn index(&self, c: [i64; 3]) -> usize {
+        ((c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]) as usize
+    }
+
+    fn max_ring(&self) -> i64 {
+        self.dims.iter().copied().max().unwrap_or(1)
+    }
+
+    /// Calls `f` with every point in the cells at Chebyshev distance exactly `r` from `c`.
+    fn for_ring(&self, c: [i64; 3], r: i64, mut f: impl FnMut(u32)) {
+        let lo = [0, 1, 2].map(|a| (c[a] - r).max(0));
+        let hi = [0, 1, 2].map(|a| (c[a] + r).min(self.dims[a] - 1));
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                let on_shell_yz = (z - c[2]).abs() == r || (y - c[1]).abs() == r;
+                let mut x = lo[0];
+                while x <= hi[0] {
+                    if on_shell_yz || (x - c[0]).abs() == r {
+                        let k = self.index([x, y, z]);
+                        for &i in &self.items[self.start[k] as usize..self.start[k + 1] as usize] {
+                            f(i);
+                        }
+                    }
+                    // Inside the shell only the two end cells of a row are on it.
+                    x = if on_shell_yz || x >= c[0] + r { x + 1 } else { c[0] + r };
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn brute(points: &[[f32; 3]], k: usize) -> Vec<f32> {
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let mut d: Vec<f32> = points
+                    .iter()
+                    .enumerate()
+                    .filter(|&(j, _)| j != i)
+                    .map(|(_, q)| (0..3).map(|a| (p[a] - q[a]) * (p[a] - q[a])).sum::<f32>())
+                    .collect();
+                d.sort_by(f32::total_cmp);
+                d[k.min(d.len()) - 1].sqrt()
+            })
+            .collect()
+    }
+
+    fn sphere_cloud(n: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut r = SplitMix64(seed);
+        (0..n)
+            .map(|_| {
+                let v = [r.normal(), r.normal(), r.normal()];
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                v.map(|x| (0.4 * x / l) as f32)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn knn_matches_brute_force() {
+        for (n, k, seed) in [(2, 1, 1), (10, 50, 2), (500, 1, 3), (2000, 50, 4), (1500, 7, 5)] {
+            let pts = sphere_cloud(n, seed);
+            assert_eq!(kth_neighbour_distance(&pts, k), brute(&pts, k), "n={n} k={k}");
+        }
+        // Clusters with empty space between them, and duplicates.
+        let mut pts = sphere_cloud(300, 6);
+        pts.extend(sphere_cloud(300, 7).iter().map(|p| [p[0] * 0.01 + 5.0, p[1] * 0.01, p[2]]));
+        pts.extend(vec![[1.0, 1.0, 1.0]; 20]);
+        assert_eq!(kth_neighbour_distance(&pts, 30), brute(&pts, 30));
+    }
+
+    #[test]
+    fn upsample_offsets_scale_with_local_spacing() {
+        let pts = sphere_cloud(4000, 8);
+        let sigma = kth_neighbour_distance(&pts, DEFAULT_K);
+        let extra = upsample(&pts, DEFAULT_K, 9);
+        assert_eq!(extra.len(), pts.len());
+        // The offsets' RMS per axis is σ: check the pooled normalised offsets have unit variance.
+        let mut s2 = 0.0f64;
+        for ((p, q), s) in pts.iter().zip(&extra).zip(&sigma) {
+            for a in 0..3 {
+                s2 += ((q[a] - p[a]) as f64 / *s as f64).powi(2);
+            }
+        }
+        let var = s2 / (3.0 * pts.len() as f64);
+        assert!((var - 1.0).abs() < 0.05, "{var}");
+        assert_eq!(upsample(&pts, DEFAULT_K, 9), extra, "seeded");
+    }
+}
