@@ -8,6 +8,7 @@ use std::fmt;
 
 use crate::cloud::{subsample, CloudError, Normalization, PointCloud};
 use crate::gpu::{Gpu, GpuError};
+use crate::krr::{self, KrrError, LengthScaleInit, Objective, TuneSettings};
 use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, ExtractStats, FieldError, Mesh};
 use crate::net::{GpuNet, NetError, Weights};
 
@@ -43,11 +44,34 @@ pub struct Settings {
     /// seeded) with a notice. The network was trained on 500–10k points; far denser input only
     /// costs memory and time (features are pooled per plane cell, so density matters little).
     pub max_points: usize,
+    /// Inducing points of the Nyström KRR (paper: 500; 1000 slightly better; 5000 overfits).
+    pub m: usize,
+    /// Adam steps of the test-time tuning (paper: 100; 0 = no tuning).
+    pub steps: usize,
+    /// Ridge parameter λ (the paper does not give it; see docs/krr.md for how it was chosen).
+    pub lambda: f64,
+    /// Tune the kernel length-scales (ablation "w/o θ" turns this off).
+    pub tune_theta: bool,
+    /// Tune the inducing points (ablation "w/o Z" turns this off).
+    pub tune_z: bool,
+    /// Neighbour rank whose distance scales the offsets of the extra training points.
+    pub knn_k: usize,
 }
 
 impl Default for Settings {
     fn default() -> Self {
-        Settings { method: Method::Network, resolution: 128, remove_small_components: None, max_points: 100_000 }
+        Settings {
+            method: Method::Network,
+            resolution: 128,
+            remove_small_components: None,
+            max_points: 100_000,
+            m: 500,
+            steps: 100,
+            lambda: 1e-3,
+            tune_theta: true,
+            tune_z: true,
+            knn_k: crate::sample::DEFAULT_K,
+        }
     }
 }
 
@@ -55,6 +79,10 @@ impl Default for Settings {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Stage {
     Features,
+    /// Training pairs: extra points sampled and labelled by the network.
+    Pairs,
+    /// Test-time tuning: `step` of at most `of`, with the objective's value.
+    Tuning { step: usize, of: usize, loss: f64 },
     /// Field evaluations made so far while meshing.
     Meshing { evaluated: usize },
     Done,
@@ -67,7 +95,7 @@ pub enum PipelineError {
     Gpu(GpuError),
     Net(NetError),
     Mesh(ExtractError),
-    NotAvailable(String),
+    Krr(KrrError),
     Cancelled,
 }
 
@@ -78,7 +106,7 @@ impl fmt::Display for PipelineError {
             PipelineError::Gpu(e) => write!(f, "{e}"),
             PipelineError::Net(e) => write!(f, "the network prior could not be loaded: {e}"),
             PipelineError::Mesh(e) => write!(f, "mesh extraction failed: {e}"),
-            PipelineError::NotAvailable(s) => write!(f, "{s}"),
+            PipelineError::Krr(e) => write!(f, "the kernel regression failed: {e}"),
             PipelineError::Cancelled => write!(f, "cancelled"),
         }
     }
@@ -98,8 +126,31 @@ pub struct Reconstruction {
     pub mesh: Mesh,
     pub notices: Vec<String>,
     pub extract: ExtractStats,
+    /// What the test-time tuning did (nkrr only).
+    pub tuning: Option<TuningSummary>,
     /// (stage, seconds).
     pub timings: Vec<(&'static str, f64)>,
+}
+
+/// What the kernel regression's tuning did, for reports and benchmarks.
+#[derive(Clone, Debug)]
+pub struct TuningSummary {
+    pub n: usize,
+    pub m: usize,
+    pub steps_run: usize,
+    pub best_step: usize,
+    pub stop: String,
+    pub initial_loss: f64,
+    pub final_loss: f64,
+    pub initial_data_fit: f64,
+    pub best_data_fit: f64,
+    pub length_scales: Vec<f64>,
+}
+
+/// The fitted regression: g(x) = Σ_j β_j k(x, z_j) on feature vectors x.
+struct KrrFit {
+    params: krr::Params,
+    beta: Vec<f64>,
 }
 
 /// Seconds since an arbitrary origin; `Instant` does not exist on wasm32-unknown-unknown.
@@ -139,11 +190,6 @@ impl Engine {
         settings: &Settings,
         progress: &mut dyn FnMut(&Stage) -> bool,
     ) -> Result<Reconstruction, PipelineError> {
-        if settings.method == Method::Nkrr {
-            return Err(PipelineError::NotAvailable(
-                "method 'nkrr' is not implemented yet in this build; use --method network".into(),
-            ));
-        }
         let mut timings = Vec::new();
         let mut notices = Vec::new();
         let norm = Normalization::of(cloud).map_err(PipelineError::Cloud)?;
@@ -165,6 +211,24 @@ impl Engine {
         self.net.wait();
         timings.push(("features", now() - t));
 
+        let mut tuning = None;
+        let fit = if settings.method == Method::Nkrr {
+            if !progress(&Stage::Pairs) {
+                return Err(PipelineError::Cancelled);
+            }
+            let t = now();
+            let (problem, n_surface) = self.training_pairs(&planes, &points, settings).await?;
+            timings.push(("pairs", now() - t));
+            let t = now();
+            let (fit, summary) = fit_krr(&problem, settings, progress)?;
+            timings.push(("tuning", now() - t));
+            let _ = n_surface;
+            tuning = Some(summary);
+            Some(fit)
+        } else {
+            None
+        };
+
         let t = now();
         let opts = ExtractOptions {
             resolution: settings.resolution,
@@ -176,6 +240,7 @@ impl Engine {
         let progress = RefCell::new(progress);
         let net = &self.net;
         let planes = &planes;
+        let fit = fit.as_ref();
         let eval = |pts: Vec<[f32; 3]>| {
             let evaluated = &evaluated;
             let cancelled = &cancelled;
@@ -186,7 +251,16 @@ impl Engine {
                     *cancelled.borrow_mut() = true;
                     return Err(FieldError("cancelled".into()));
                 }
-                net.decode(planes, &pts).await.map(|(_, logits)| logits).map_err(|e| FieldError(e.to_string()))
+                let (features, logits) = net.decode(planes, &pts).await.map_err(|e| FieldError(e.to_string()))?;
+                match fit {
+                    None => Ok(logits),
+                    Some(fit) => {
+                        let x: Vec<f64> = features.iter().map(|&v| v as f64).collect();
+                        let g = krr::predict(&fit.beta, &fit.params.z, &fit.params.log_s, &x)
+                            .map_err(|e| FieldError(e.to_string()))?;
+                        Ok(g.into_iter().map(|v| v as f32).collect())
+                    }
+                }
             }
         };
         let extraction = extract_gpu_async(&self.gpu, eval, &opts).await;
@@ -201,6 +275,63 @@ impl Engine {
             *p = norm.inverse(*p);
         }
         (progress.borrow_mut())(&Stage::Done);
-        Ok(Reconstruction { mesh, notices, extract: extraction.stats, timings })
+        Ok(Reconstruction { mesh, notices, extract: extraction.stats, tuning, timings })
     }
+
+    /// X = F([P, P~]), y = [0, l(P~)] (paper eq. 6): the input points lie on the surface
+    /// (logit 0), the extra points take the network's logit as a pseudo-label.
+    async fn training_pairs(
+        &self,
+        planes: &crate::net::GpuPlanes,
+        points: &[[f32; 3]],
+        settings: &Settings,
+    ) -> Result<(krr::Problem, usize), PipelineError> {
+        let extra = crate::sample::upsample(points, settings.knn_k, 2);
+        let mut all = points.to_vec();
+        all.extend_from_slice(&extra);
+        let (features, logits) = self.net.decode(planes, &all).await?;
+        let y: Vec<f32> = logits.iter().enumerate().map(|(i, &l)| if i < points.len() { 0.0 } else { l }).collect();
+        let d = self.net.config().c_dim;
+        let problem = krr::Problem::from_f32(&features, &y, d).map_err(PipelineError::Krr)?;
+        Ok((problem, points.len()))
+    }
+}
+
+/// Initialises (Z from rows of X, length-scales from the features' spread) and tunes the
+/// Nyström KRR, keeping the parameters with the lowest training error (method.md §4).
+fn fit_krr(
+    problem: &krr::Problem,
+    settings: &Settings,
+    progress: &mut dyn FnMut(&Stage) -> bool,
+) -> Result<(KrrFit, TuningSummary), PipelineError> {
+    let m = settings.m.clamp(1, problem.n());
+    let init = krr::init_params(problem, m, 3, LengthScaleInit::default());
+    let ks = krr::Settings::new(settings.lambda, m);
+    let mut objective = krr::Reference { problem, settings: ks };
+    let ts = TuneSettings {
+        steps: settings.steps,
+        tune_theta: settings.tune_theta,
+        tune_z: settings.tune_z,
+        ..Default::default()
+    };
+    let initial = objective.eval(&init).map_err(PipelineError::Krr)?;
+    let of = settings.steps;
+    let result = krr::tune(&mut objective, init, &ts, |step, eval| progress(&Stage::Tuning { step, of, loss: eval.loss }))
+        .map_err(PipelineError::Krr)?;
+    if matches!(result.stop, krr::StopReason::Cancelled) {
+        return Err(PipelineError::Cancelled);
+    }
+    let summary = TuningSummary {
+        n: problem.n(),
+        m,
+        steps_run: result.history.len().saturating_sub(1),
+        best_step: result.best_step,
+        stop: format!("{:?}", result.stop),
+        initial_loss: initial.loss,
+        final_loss: result.history.last().map_or(initial.loss, |h| h.loss),
+        initial_data_fit: initial.data_fit,
+        best_data_fit: result.eval.data_fit,
+        length_scales: result.params.length_scales(),
+    };
+    Ok((KrrFit { beta: result.eval.beta, params: result.params }, summary))
 }

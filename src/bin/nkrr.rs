@@ -13,6 +13,10 @@ USAGE:
         --resolution N             marching-cubes resolution (16..=1024)     [128]
         --remove-small F           drop components below F x the largest's triangle count
         --max-points N             subsample larger clouds for the encoder   [100000]
+        --m N                      inducing points of the KRR                [500]
+        --steps N                  Adam steps of the test-time tuning        [100]
+        --lambda X                 ridge parameter of the KRR                [0.001]
+        --no-tune | --no-theta | --no-z   the paper's ablations
     nkrr gpu                the GPU adapter wgpu finds here and its limits
     nkrr --help | --version
 ";
@@ -117,6 +121,18 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
                 settings.remove_small_components = Some(f);
             }
             "--max-points" => settings.max_points = parse::<usize>(&value(a)?, a)?.max(1),
+            "--m" => settings.m = parse::<usize>(&value(a)?, a)?.max(1),
+            "--steps" => settings.steps = parse(&value(a)?, a)?,
+            "--lambda" => {
+                let l: f64 = parse(&value(a)?, a)?;
+                if !(l > 0.0 && l.is_finite()) {
+                    return Err(usage("--lambda must be > 0"));
+                }
+                settings.lambda = l;
+            }
+            "--no-tune" => settings.steps = 0,
+            "--no-theta" => settings.tune_theta = false,
+            "--no-z" => settings.tune_z = false,
             s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
             s if input.is_none() => input = Some(s.to_string()),
             s => return Err(usage(&format!("unexpected argument '{s}'"))),
@@ -142,6 +158,8 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     let mut report = |s: &Stage| {
         let line = match s {
             Stage::Features => "computing features".to_string(),
+            Stage::Pairs => "sampling and labelling training pairs".to_string(),
+            Stage::Tuning { step, of, loss } => format!("tuning: step {step}/{of}, loss {loss:.6}"),
             Stage::Meshing { evaluated } => format!("meshing: {evaluated} field evaluations"),
             Stage::Done => "done".to_string(),
         };
@@ -153,6 +171,12 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     };
     let rec = pollster::block_on(engine.reconstruct(&parsed.cloud, &settings, &mut report))
         .map_err(|e| fail(format!("{input}: {e}")))?;
+    if let Some(t) = &rec.tuning {
+        eprintln!(
+            "tuning: n {} m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e} (best at step {})",
+            t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit, t.best_step
+        );
+    }
     for n in &rec.notices {
         eprintln!("notice: {n}");
     }
