@@ -5,7 +5,8 @@
 //! covers (many queries, other clouds). So it is written for clarity, not speed: plain loops,
 //! one function per layer type, PyTorch weight layouts used as they are. Arithmetic is f32
 //! throughout, as in PyTorch (the order of the sums differs from PyTorch's BLAS, which moves
-//! results by rounding only); the geometry (plane coordinates, cells, bilinear weights) follows
+//! results by rounding only; the convolutions sum in the GPU kernel's order, so CPU and GPU agree
+//! to a few ulps); the geometry (plane coordinates, cells, bilinear weights) follows
 //! the contract operation by operation, because there rounding decides which cell a point is in.
 
 use super::{plane_uv, Cells, Planes, Weights, ENCODER_BLOCKS};
@@ -93,11 +94,14 @@ pub fn encode_points(w: &Weights, points: &[[f32; 3]]) -> Planes {
         let pts = cells.points_of(k);
         let flat = cells.cell_plane_cell[k] as usize;
         let (plane, cell) = (flat / rr, flat % rr);
-        for ch in 0..c_dim {
-            let mut s = 0.0f32;
-            for &p in pts {
-                s += c[p as usize][ch];
+        // Mean per channel: the sum in point order, then one division.
+        let mut sum = vec![0.0f32; c_dim];
+        for &p in pts {
+            for (s, v) in sum.iter_mut().zip(&c[p as usize]) {
+                *s += v;
             }
+        }
+        for (ch, s) in sum.iter().enumerate() {
             planes.data[(plane * c_dim + ch) * rr + cell] = s / pts.len() as f32;
         }
     }
@@ -115,17 +119,17 @@ pub fn conv3x3(x: &[f32], p: usize, c_in: usize, r: usize, wt: &[f32], bias: &[f
     for img in 0..p {
         for o in 0..c_out {
             let acc = &mut out[(img * c_out + o) * rr..(img * c_out + o + 1) * rr];
-            for c in 0..c_in {
-                let src = &x[(img * c_in + c) * rr..(img * c_in + c + 1) * rr];
-                for ky in 0..3 {
+            // Sum order: kernel row, input channel, kernel column (the GPU kernel's order).
+            for ky in 0..3 {
+                // Output rows whose tap row y + ky - 1 is inside.
+                let (y0, y1) = (1usize.saturating_sub(ky), (r + 1 - ky).min(r));
+                for c in 0..c_in {
+                    let src = &x[(img * c_in + c) * rr..(img * c_in + c + 1) * rr];
                     for kx in 0..3 {
                         let wv = wt[((o * c_in + c) * 3 + ky) * 3 + kx];
-                        // Output rows/columns whose tap (y + ky - 1, x + kx - 1) is inside.
-                        let (y0, y1) = (1usize.saturating_sub(ky), (r + 1 - ky).min(r));
                         let (x0, x1) = (1usize.saturating_sub(kx), (r + 1 - kx).min(r));
                         for y in y0..y1 {
-                            let sy = y + ky - 1;
-                            let srow = &src[sy * r..(sy + 1) * r];
+                            let srow = &src[(y + ky - 1) * r..(y + ky) * r];
                             let arow = &mut acc[y * r..(y + 1) * r];
                             for xx in x0..x1 {
                                 arow[xx] += wv * srow[xx + kx - 1];

@@ -1,23 +1,29 @@
 //! The network's forward pass as WGSL compute kernels (`shaders/net_*.wgsl`).
 //!
 //! Why this shape:
-//! - Weights are uploaded once in [`GpuNet::new`]: the raw f32 tensors (PyTorch layouts, read
-//!   by offset), the 3x3 convolutions repacked as vec4 output-channel groups, and the decoder
-//!   repacked in a fixed order so its shader needs no offset table. Sizes come from the weights'
-//!   metadata and are pasted into the shader text (`{{H}}`, …) because WGSL private arrays need
-//!   constant sizes.
+//! - Weights are repacked and uploaded once, in [`GpuNet::new`], into three vec4 buffers
+//!   (encoder, U-Net, decoder), laid out for the kernels rather than as PyTorch stores them:
+//!   Linear layers as 4x4 blocks for `mat4x4 * vec4`, convolutions as vec4s of 4 output
+//!   channels per (input channel, tap). On every device measured (llvmpipe) the kernels are
+//!   bound by loads, not arithmetic, so the layouts aim at few, wide, uniform loads.
+//! - Sizes come from the weights' metadata and are pasted into the shader text (`{{HB}}`, …)
+//!   because WGSL private arrays need constant sizes; nothing is fixed at the default sizes.
 //! - WGSL has no float atomics, so the encoder's per-cell max pooling and scatter-mean are
 //!   gathers over a cell → points list built on the CPU by a stable counting sort ([`Cells`],
-//!   O(N)); each (cell, channel) is reduced by one invocation in point order. That is also where
-//!   the contract's exact f32 cell assignment is computed, once, shared with the CPU reference,
-//!   so both put every point in the same cell and results are deterministic.
-//! - The encoder and the U-Net are recorded into one command buffer (a few dozen dispatches,
-//!   each one kernel over all three planes); intermediate buffers are per call.
-//! - Decoding goes in chunks of queries whose size derives from the device's binding limit (and a
-//!   cap that keeps each submission short enough for browser watchdogs); buffers are allocated
-//!   once per call and reused by every chunk.
+//!   O(N)); each (cell, 4 channels) is reduced by one invocation in point order. That is also
+//!   where the contract's exact f32 cell assignment is computed, once, shared with the CPU
+//!   reference, so both put every point in the same cell and results are deterministic.
+//! - The encoder and the U-Net are recorded into one command buffer (about 30 dispatches, each
+//!   over all three planes at once); intermediate buffers are per call. The U-Net's final 1x1
+//!   convolution writes the planes channel-last ([`GpuPlanes`]) so each bilinear corner the
+//!   decoder reads is a few vec4 loads.
+//! - Decoding goes in chunks of [`GpuNet::chunk_queries`] queries (at most [`MAX_DECODE_CHUNK`],
+//!   fewer where the device's binding limit requires), so a call with millions of queries
+//!   respects binding and dispatch limits and no submission runs long enough to trip a
+//!   browser's GPU watchdog; the chunk buffers are allocated once per call and reused.
 //! - Everything is f32 (browsers have no f64), workgroups are 64 invocations, and 1-D work is
-//!   folded into 2-D dispatches by [`Gpu::dispatch_linear`].
+//!   folded into 2-D dispatches by [`Gpu::dispatch_linear`]. Device errors during a call are
+//!   caught with an error scope and returned as [`GpuError::Kernel`].
 //! - `GpuNet` keeps its own handles to the device (wgpu handles are reference-counted clones),
 //!   so it can be stored next to the [`Gpu`] it came from without a borrow.
 
@@ -34,7 +40,8 @@ const DECODER_WGSL: &str = include_str!("../../shaders/net_decoder.wgsl");
 const WG: u32 = 64;
 
 /// Most queries per decode submission, whatever the limits allow: about 1 G multiply-adds with
-/// the default sizes, short enough not to trip a browser's GPU watchdog on a weak device.
+/// the default sizes, short enough not to trip a browser's GPU watchdog on a weak device (and
+/// under a second per chunk on llvmpipe).
 pub const MAX_DECODE_CHUNK: usize = 65536;
 
 #[repr(C)]
@@ -46,11 +53,12 @@ struct EncParams {
     fc1_w: u32,
     fc1_b: u32,
     sc_w: u32,
+    nin: u32,
     lin_w: u32,
     lin_b: u32,
     last: u32,
     rr: u32,
-    _pad: [u32; 2],
+    _pad: u32,
 }
 
 #[repr(C)]
@@ -75,18 +83,24 @@ struct DecParams {
     reso: u32,
     divisor: f32,
     uv_max: f32,
+    n_blocks: u32,
+    hb: u32,
+    cb: u32,
+    _pad: u32,
 }
 
-/// Where a repacked 3x3 convolution lives in the vec4 weight buffer (vec4 units).
+/// Where a repacked layer lives in its vec4 buffer (vec4 units).
 #[derive(Clone, Copy, Debug)]
-struct ConvSlot {
+struct Slot {
     w_off: u32,
     b_off: u32,
-    c_in: usize,
-    c_out: usize,
+    /// Output channels.
+    n_out: usize,
 }
 
-/// Feature planes on the GPU: `[3][c_dim][reso][reso]` f32, as [`Planes`].
+/// Feature planes on the GPU, in the decoder's layout: channel-last, `[3][reso][reso][4 cb]` f32
+/// with `cb = ceil(c_dim / 4)` and channels past `c_dim` zero. [`GpuNet::read_planes`] and
+/// [`GpuNet::upload_planes`] convert from and to the contract's `[3][c_dim][reso][reso]`.
 pub struct GpuPlanes {
     pub buffer: wgpu::Buffer,
     pub c_dim: usize,
@@ -94,8 +108,13 @@ pub struct GpuPlanes {
 }
 
 impl GpuPlanes {
+    /// Padded channels per pixel.
+    fn stride(&self) -> usize {
+        4 * self.c_dim.div_ceil(4)
+    }
+    /// f32 elements in the buffer.
     pub fn len(&self) -> usize {
-        3 * self.c_dim * self.reso * self.reso
+        3 * self.reso * self.reso * self.stride()
     }
     pub fn is_empty(&self) -> bool {
         self.len() == 0
@@ -110,7 +129,7 @@ struct Pipelines {
     conv3x3: wgpu::ComputePipeline,
     maxpool2: wgpu::ComputePipeline,
     upconv2: wgpu::ComputePipeline,
-    conv1x1: wgpu::ComputePipeline,
+    final1x1: wgpu::ComputePipeline,
     decode: wgpu::ComputePipeline,
 }
 
@@ -118,11 +137,10 @@ struct Pipelines {
 pub struct GpuNet {
     gpu: Gpu,
     config: NetConfig,
-    /// Offsets of the raw tensors in `weights`.
-    offsets: BTreeMap<String, u32>,
-    weights: wgpu::Buffer,
-    conv_w: wgpu::Buffer,
-    convs: BTreeMap<String, ConvSlot>,
+    enc_w: wgpu::Buffer,
+    enc_slots: BTreeMap<String, Slot>,
+    unet_w: wgpu::Buffer,
+    unet_slots: BTreeMap<String, Slot>,
     dec_w: wgpu::Buffer,
     pipes: Pipelines,
     chunk: usize,
@@ -143,49 +161,156 @@ fn to_u32(what: &str, v: usize) -> Result<u32, GpuError> {
     u32::try_from(v).map_err(|_| GpuError::TooLarge(format!("{what}: {v} does not fit 32 bits")))
 }
 
-/// The vec4 repacking of a 3x3 conv: `[c_in][9][groups]` vec4 (lane l = output 4g + l), then
-/// `groups` vec4 of bias.
-fn pack_conv3x3(out: &mut Vec<[f32; 4]>, wt: &[f32], bias: &[f32], c_in: usize) -> (usize, usize) {
+/// Output channels one U-Net invocation computes (4 vec4 accumulators).
+const CONV_BLOCK: usize = 16;
+
+fn slot(w_off: usize, b_off: usize, n_out: usize) -> Slot {
+    Slot { w_off: w_off as u32, b_off: b_off as u32, n_out }
+}
+
+/// A convolution repacked for `shaders/net_conv2d.wgsl`: for each `(c, tap)` of `rows`, in that
+/// order, `4 * ceil(c_out / 16)` vec4s whose lane l of vec4 v is `get(4v + l, c, tap)` (zero past
+/// `c_out`); then the bias in as many vec4s.
+fn pack_conv(
+    out: &mut Vec<[f32; 4]>,
+    bias: &[f32],
+    rows: impl Iterator<Item = (usize, usize)>,
+    get: impl Fn(usize, usize, usize) -> f32,
+) -> Slot {
     let c_out = bias.len();
-    let groups = c_out.div_ceil(4);
+    let vecs = 4 * c_out.div_ceil(CONV_BLOCK);
     let w_off = out.len();
-    for c in 0..c_in {
-        for tap in 0..9 {
-            for g in 0..groups {
-                out.push(std::array::from_fn(|l| {
-                    let o = 4 * g + l;
-                    if o < c_out { wt[(o * c_in + c) * 9 + tap] } else { 0.0 }
+    for (c, tap) in rows {
+        for v in 0..vecs {
+            out.push(std::array::from_fn(|l| {
+                let o = 4 * v + l;
+                if o < c_out { get(o, c, tap) } else { 0.0 }
+            }));
+        }
+    }
+    let b_off = out.len();
+    for v in 0..vecs {
+        out.push(std::array::from_fn(|l| bias.get(4 * v + l).copied().unwrap_or(0.0)));
+    }
+    slot(w_off, b_off, c_out)
+}
+
+/// Input positions of a zero-padded vector of `n` values: position i holds value i.
+fn plain(n: usize) -> Vec<Option<usize>> {
+    (0..4 * n.div_ceil(4)).map(|i| (i < n).then_some(i)).collect()
+}
+
+/// Input positions of the encoder's `[net | pooled]`, each half padded to whole vec4s.
+fn concat_halves(h: usize) -> Vec<Option<usize>> {
+    let half = plain(h);
+    let len = half.len();
+    half.iter().copied().chain(half.iter().map(|i| i.map(|i| i + h))).take(2 * len).collect()
+}
+
+/// A Linear layer (`w` is `[n_out, n_in]`) repacked as 4x4 blocks for `mat4x4 * vec4`: for each
+/// output block, for each input block, 4 vec4 columns (column j = the weights of input position
+/// 4k + j for outputs 4o .. 4o + 3; `inputs[p]` says which input a position holds, if any); then
+/// the bias as vec4s (zero when absent).
+fn pack_linear(out: &mut Vec<[f32; 4]>, w: &[f32], b: Option<&[f32]>, n_out: usize, inputs: &[Option<usize>]) -> Slot {
+    let n_in = w.len() / n_out;
+    let (ob, ib) = (n_out.div_ceil(4), inputs.len() / 4);
+    let w_off = out.len();
+    for o in 0..ob {
+        for k in 0..ib {
+            for j in 0..4 {
+                out.push(std::array::from_fn(|l| match inputs[4 * k + j] {
+                    Some(i) if 4 * o + l < n_out => w[(4 * o + l) * n_in + i],
+                    _ => 0.0,
                 }));
             }
         }
     }
     let b_off = out.len();
-    for g in 0..groups {
-        out.push(std::array::from_fn(|l| bias.get(4 * g + l).copied().unwrap_or(0.0)));
+    for o in 0..ob {
+        out.push(std::array::from_fn(|l| b.and_then(|b| b.get(4 * o + l)).copied().unwrap_or(0.0)));
     }
-    (w_off, b_off)
+    slot(w_off, b_off, n_out)
 }
 
-/// The decoder's weights in the order `shaders/net_decoder.wgsl` expects.
-fn pack_decoder(w: &Weights) -> Vec<f32> {
+fn pack_linear_named(out: &mut Vec<[f32; 4]>, w: &Weights, name: &str, inputs: &[Option<usize>]) -> Slot {
+    let bias = w.get(&format!("{name}.bias"));
+    let wt = w.t(&format!("{name}.weight"));
+    let n_out = w.shape(&format!("{name}.weight")).expect("validated")[0];
+    pack_linear(out, wt, bias, n_out, inputs)
+}
+
+/// The decoder's layers in the order `shaders/net_decoder.wgsl` expects.
+fn pack_decoder(w: &Weights) -> Vec<[f32; 4]> {
+    let cfg = w.config();
     let mut v = Vec::new();
-    v.extend_from_slice(w.t("decoder.fc_p.weight"));
-    v.extend_from_slice(w.t("decoder.fc_p.bias"));
-    for b in 0..w.config().n_blocks_dec {
-        for name in [
-            format!("decoder.fc_c.{b}.weight"),
-            format!("decoder.fc_c.{b}.bias"),
-            format!("decoder.blocks.{b}.fc_0.weight"),
-            format!("decoder.blocks.{b}.fc_0.bias"),
-            format!("decoder.blocks.{b}.fc_1.weight"),
-            format!("decoder.blocks.{b}.fc_1.bias"),
-        ] {
-            v.extend_from_slice(w.t(&name));
-        }
+    pack_linear_named(&mut v, w, "decoder.fc_p", &plain(3));
+    for b in 0..cfg.n_blocks_dec {
+        pack_linear_named(&mut v, w, &format!("decoder.fc_c.{b}"), &plain(cfg.c_dim));
+        pack_linear_named(&mut v, w, &format!("decoder.blocks.{b}.fc_0"), &plain(cfg.h_dec));
+        pack_linear_named(&mut v, w, &format!("decoder.blocks.{b}.fc_1"), &plain(cfg.h_dec));
     }
-    v.extend_from_slice(w.t("decoder.fc_out.weight"));
-    v.extend_from_slice(w.t("decoder.fc_out.bias"));
+    pack_linear_named(&mut v, w, "decoder.fc_out", &plain(cfg.h_dec));
+    // The shader derives these offsets from the sizes; keep the two in step.
+    let (hb, cb) = (cfg.h_dec.div_ceil(4), cfg.c_dim.div_ceil(4));
+    let block = (4 * hb * cb + hb) + 2 * (4 * hb * hb + hb);
+    debug_assert_eq!(v.len(), 5 * hb + cfg.n_blocks_dec * block + 4 * hb + 1);
     v
+}
+
+/// The encoder's layers, by state-dict prefix.
+fn pack_encoder(w: &Weights) -> (Vec<[f32; 4]>, BTreeMap<String, Slot>) {
+    let h = w.config().h;
+    let mut v = Vec::new();
+    let mut slots = BTreeMap::new();
+    let mut add = |name: String, inputs: &[Option<usize>]| {
+        let s = pack_linear_named(&mut v, w, &name, inputs);
+        slots.insert(name, s);
+    };
+    add("encoder.fc_pos".into(), &plain(3));
+    for b in 0..ENCODER_BLOCKS {
+        // Block 0 reads fc_pos's 2h outputs; the others read [net | pooled].
+        let inputs = if b == 0 { plain(2 * h) } else { concat_halves(h) };
+        add(format!("encoder.blocks.{b}.fc_0"), &inputs);
+        add(format!("encoder.blocks.{b}.fc_1"), &plain(h));
+        add(format!("encoder.blocks.{b}.shortcut"), &inputs);
+    }
+    add("encoder.fc_c".into(), &plain(h));
+    (v, slots)
+}
+
+/// The U-Net's weighted layers, by state-dict prefix.
+fn pack_unet(w: &Weights) -> (Vec<[f32; 4]>, BTreeMap<String, Slot>) {
+    let cfg = w.config();
+    let mut v = Vec::new();
+    let mut slots = BTreeMap::new();
+    let mut conv3 = |v: &mut Vec<[f32; 4]>, name: String, c_in: usize| {
+        let wt = w.t(&format!("{name}.weight"));
+        let rows = (0..9).flat_map(move |tap| (0..c_in).map(move |c| (c, tap)));
+        let s = pack_conv(v, w.t(&format!("{name}.bias")), rows, |o, c, tap| wt[(o * c_in + c) * 9 + tap]);
+        slots.insert(name, s);
+    };
+    for k in 0..cfg.unet_depth {
+        let fin = if k == 0 { cfg.c_dim } else { cfg.filters(k - 1) };
+        conv3(&mut v, format!("unet.down.{k}.conv0"), fin);
+        conv3(&mut v, format!("unet.down.{k}.conv1"), cfg.filters(k));
+    }
+    for k in 0..cfg.unet_depth - 1 {
+        conv3(&mut v, format!("unet.up.{k}.conv0"), 2 * cfg.filters(k));
+        conv3(&mut v, format!("unet.up.{k}.conv1"), cfg.filters(k));
+    }
+    for k in 0..cfg.unet_depth - 1 {
+        let name = format!("unet.up.{k}.upconv");
+        let (c_in, c_out) = (cfg.filters(k + 1), cfg.filters(k));
+        let wt = w.t(&format!("{name}.weight"));
+        let rows = (0..c_in).flat_map(|c| (0..4).map(move |tap| (c, tap)));
+        let s = pack_conv(&mut v, w.t(&format!("{name}.bias")), rows, |o, c, tap| wt[(c * c_out + o) * 4 + tap]);
+        slots.insert(name, s);
+    }
+    let c_in = cfg.unet_filters;
+    let wt = w.t("unet.final.weight");
+    let s = pack_conv(&mut v, w.t("unet.final.bias"), (0..c_in).map(|c| (c, 0)), |o, c, _| wt[o * c_in + c]);
+    slots.insert("unet.final".into(), s);
+    (v, slots)
 }
 
 /// Pipelines for several entry points of one WGSL module (layouts inferred per entry point).
@@ -220,87 +345,62 @@ fn specialise(source: &str, vars: &[(&str, usize)]) -> String {
 }
 
 impl GpuNet {
-    /// Uploads `weights` and builds the kernels for its sizes.
+    /// Uploads `weights` (repacked for the kernels) and builds the kernels for its sizes.
     pub async fn new(gpu: &Gpu, weights: &Weights) -> Result<GpuNet, GpuError> {
         let cfg = weights.config().clone();
         let scope = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
 
-        let data = weights.data();
-        gpu.check_binding::<f32>("network weights", data.len())?;
-        to_u32("network weights", data.len())?;
-        let offsets: BTreeMap<String, u32> =
-            weights.names().map(|n| (n.to_string(), weights.off(n) as u32)).collect();
-        let weights_buf = gpu.upload("net weights", data);
-
-        let mut packed: Vec<[f32; 4]> = Vec::new();
-        let mut convs = BTreeMap::new();
-        let mut add_conv = |name: String, c_in: usize| {
-            let wt = weights.t(&format!("{name}.weight"));
-            let bias = weights.t(&format!("{name}.bias"));
-            let (w_off, b_off) = pack_conv3x3(&mut packed, wt, bias, c_in);
-            convs.insert(name, (w_off, b_off, c_in, bias.len()));
-        };
-        for k in 0..cfg.unet_depth {
-            let fin = if k == 0 { cfg.c_dim } else { cfg.filters(k - 1) };
-            add_conv(format!("unet.down.{k}.conv0"), fin);
-            add_conv(format!("unet.down.{k}.conv1"), cfg.filters(k));
+        let (enc, enc_slots) = pack_encoder(weights);
+        let (unet, unet_slots) = pack_unet(weights);
+        let dec = pack_decoder(weights);
+        for (label, len) in [("encoder weights", enc.len()), ("U-Net weights", unet.len()), ("decoder weights", dec.len())] {
+            gpu.check_binding::<[f32; 4]>(label, len)?;
+            to_u32(label, len)?;
         }
-        for k in 0..cfg.unet_depth - 1 {
-            add_conv(format!("unet.up.{k}.conv0"), 2 * cfg.filters(k));
-            add_conv(format!("unet.up.{k}.conv1"), cfg.filters(k));
-        }
-        gpu.check_binding::<[f32; 4]>("packed convolutions", packed.len())?;
-        to_u32("packed convolutions", packed.len())?;
-        let convs = convs
-            .into_iter()
-            .map(|(k, (w_off, b_off, c_in, c_out))| {
-                (k, ConvSlot { w_off: w_off as u32, b_off: b_off as u32, c_in, c_out })
-            })
-            .collect();
-        let conv_w = gpu.upload("net conv weights", &packed);
-        let dec_w = gpu.upload("net decoder weights", &pack_decoder(weights));
+        let enc_w = gpu.upload("net encoder weights", &enc);
+        let unet_w = gpu.upload("net U-Net weights", &unet);
+        let dec_w = gpu.upload("net decoder weights", &dec);
 
-        let pointnet = specialise(POINTNET_WGSL, &[("H", cfg.h), ("C_DIM", cfg.c_dim)]);
+        let (hb, cb) = (cfg.h.div_ceil(4), cfg.c_dim.div_ceil(4));
+        let pointnet = specialise(
+            POINTNET_WGSL,
+            &[("HB", hb), ("CB", cb), ("XB", (2 * hb).max(cb)), ("C_DIM", cfg.c_dim)],
+        );
         let decoder = specialise(
             DECODER_WGSL,
-            &[("C_DIM", cfg.c_dim), ("H_DEC", cfg.h_dec), ("N_BLOCKS", cfg.n_blocks_dec)],
+            &[("CB", cb), ("C_DIM", cfg.c_dim), ("HB", cfg.h_dec.div_ceil(4)), ("N_BLOCKS", cfg.n_blocks_dec)],
         );
-        let mut enc = pipelines(gpu, "net_pointnet", &pointnet, &["enc_first", "enc_cellmax", "enc_block", "enc_scatter"]).into_iter();
-        let mut conv = pipelines(gpu, "net_conv2d", CONV2D_WGSL, &["conv3x3", "maxpool2", "upconv2", "conv1x1"]).into_iter();
-        let mut dec = pipelines(gpu, "net_decoder", &decoder, &["decode"]).into_iter();
-        let mut next = |it: &mut std::vec::IntoIter<wgpu::ComputePipeline>| it.next().expect("one pipeline per entry");
+        let mut e = pipelines(gpu, "net_pointnet", &pointnet, &["enc_first", "enc_cellmax", "enc_block", "enc_scatter"]).into_iter();
+        let mut c = pipelines(gpu, "net_conv2d", CONV2D_WGSL, &["conv3x3", "maxpool2", "upconv2", "final1x1"]).into_iter();
+        let mut d = pipelines(gpu, "net_decoder", &decoder, &["decode"]).into_iter();
+        let next = |it: &mut std::vec::IntoIter<wgpu::ComputePipeline>| it.next().expect("one pipeline per entry");
         let pipes = Pipelines {
-            enc_first: next(&mut enc),
-            enc_cellmax: next(&mut enc),
-            enc_block: next(&mut enc),
-            enc_scatter: next(&mut enc),
-            conv3x3: next(&mut conv),
-            maxpool2: next(&mut conv),
-            upconv2: next(&mut conv),
-            conv1x1: next(&mut conv),
-            decode: next(&mut dec),
+            enc_first: next(&mut e),
+            enc_cellmax: next(&mut e),
+            enc_block: next(&mut e),
+            enc_scatter: next(&mut e),
+            conv3x3: next(&mut c),
+            maxpool2: next(&mut c),
+            upconv2: next(&mut c),
+            final1x1: next(&mut c),
+            decode: next(&mut d),
         };
         if let Some(e) = scope.pop().await {
             return Err(GpuError::Kernel(format!("building the network kernels: {e}")));
         }
-
-        // Per chunk the largest binding is the features (c_dim f32 per query).
-        let chunk = gpu
-            .rows_per_binding((cfg.c_dim * 4) as u64)
-            .min(gpu.rows_per_binding(12))
-            .min(MAX_DECODE_CHUNK)
-            .max(1);
-        Ok(GpuNet {
+        let mut net = GpuNet {
             gpu: share(gpu),
             config: cfg,
-            offsets,
-            weights: weights_buf,
-            conv_w,
-            convs,
+            enc_w,
+            enc_slots,
+            unet_w,
+            unet_slots,
             dec_w,
             pipes,
-            chunk,
-        })
+            chunk: 0,
+        };
+        net.set_chunk_queries(MAX_DECODE_CHUNK);
+        Ok(net)
     }
 
     /// [`GpuNet::new`], blocking (native only).
@@ -313,23 +413,26 @@ impl GpuNet {
         &self.config
     }
 
-    /// Queries per decode submission on this device.
+    /// Queries per decode submission on this device: [`MAX_DECODE_CHUNK`], or fewer where the
+    /// device's storage binding limit cannot hold that many features.
     pub fn chunk_queries(&self) -> usize {
         self.chunk
     }
 
-    /// Sets the queries per decode submission (clamped to 1..=the device-derived size); for
-    /// tests, and for callers that want shorter submissions.
+    /// Sets the queries per decode submission (clamped to 1 ..= what one binding holds); for
+    /// tests, and for callers that want shorter or longer submissions.
     pub fn set_chunk_queries(&mut self, n: usize) {
-        let max = self
-            .gpu
-            .rows_per_binding((self.config.c_dim * 4) as u64)
-            .min(self.gpu.rows_per_binding(12));
+        // The largest per-query binding is the features: c_dim f32.
+        let max = self.gpu.rows_per_binding((self.config.c_dim.max(3) * 4) as u64);
         self.chunk = n.clamp(1, max);
     }
 
-    fn off(&self, name: &str) -> u32 {
-        *self.offsets.get(name).unwrap_or_else(|| panic!("tensor {name} was validated at load"))
+    fn enc_slot(&self, name: &str) -> Slot {
+        *self.enc_slots.get(name).unwrap_or_else(|| panic!("{name} was packed at load"))
+    }
+
+    fn unet_slot(&self, name: &str) -> Slot {
+        *self.unet_slots.get(name).unwrap_or_else(|| panic!("{name} was packed at load"))
     }
 
     /// A bind group for `pipeline` with buffers at explicit binding indices.
@@ -345,7 +448,7 @@ impl GpuNet {
         })
     }
 
-    /// Records one dispatch of `pipeline` over `n` items.
+    /// Records one dispatch of `pipeline` over `n` invocations.
     fn pass(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -359,10 +462,11 @@ impl GpuNet {
         Ok(())
     }
 
-    /// A storage buffer of `len` f32 (zeroed).
+    /// A zeroed storage buffer of `len` f32, within the device's limits and u32 indexing.
+    /// (At least one vec4: bindings of `array<vec4<f32>>` must hold one element.)
     fn buf(&self, label: &str, len: usize) -> Result<wgpu::Buffer, GpuError> {
         to_u32(label, len)?;
-        self.gpu.storage::<f32>(label, len)
+        self.gpu.storage::<f32>(label, len.max(4))
     }
 
     /// Points (normalised, in [-0.5, 0.5]³) → the planes the decoder samples (after the U-Net).
@@ -370,7 +474,8 @@ impl GpuNet {
     /// or [`GpuNet::read_planes`].
     pub async fn encode(&self, points: &[[f32; 3]]) -> Result<GpuPlanes, GpuError> {
         let cfg = &self.config;
-        let (r, h, c_dim) = (cfg.reso, cfg.h, cfg.c_dim);
+        let (r, c_dim) = (cfg.reso, cfg.c_dim);
+        let (hb, cb) = (cfg.h.div_ceil(4), c_dim.div_ceil(4));
         let rr = r * r;
         let n = points.len();
         let cells = Cells::new(points, r, cfg.plane_divisor());
@@ -381,10 +486,10 @@ impl GpuNet {
         // Checks first: every binding within the device's limits, every index within u32.
         for (label, len) in [
             ("cloud", 3 * n),
-            ("point features", n * h),
-            ("point codes", n * c_dim),
-            ("cell maxima", k * h),
-            ("planes", 3 * c_dim * rr),
+            ("point features", n * 4 * hb),
+            ("point codes", n * 4 * cb),
+            ("cell maxima", k * 4 * hb),
+            ("planes", 3 * 4 * cb.max(c_dim) * rr),
             ("U-Net activations", 3 * 2 * cfg.unet_filters * rr),
         ] {
             g.check_binding::<f32>(label, len)?;
@@ -395,72 +500,62 @@ impl GpuNet {
         let cell_start = g.upload("cell_start", &cells.cell_start);
         let cell_pts = g.upload("cell_pts", &cells.points);
         let cell_dst = g.upload("cell_dst", &cells.cell_plane_cell);
-        let net = self.buf("point features", n * h)?;
-        let cell_max = self.buf("cell maxima", k * h)?;
-        let cfeat = self.buf("point codes", n * c_dim)?;
+        let net = self.buf("point features", n * 4 * hb)?;
+        let cell_max = self.buf("cell maxima", k * 4 * hb)?;
+        let cfeat = self.buf("point codes", n * 4 * cb)?;
         let scattered = self.buf("scattered planes", 3 * c_dim * rr)?;
 
-        let mut enc = g.device.create_command_encoder(&Default::default());
-        let mut uniforms = Vec::new();
-        let mut uni = |p: EncParams| {
-            uniforms.push(g.uniform("enc params", &p));
-            uniforms.len() - 1
-        };
         let block = |b: usize| {
-            let o = |s: &str| self.off(&format!("encoder.blocks.{b}.{s}"));
+            let s = |l: &str| self.enc_slot(&format!("encoder.blocks.{b}.{l}"));
             EncParams {
-                fc0_w: o("fc_0.weight"),
-                fc0_b: o("fc_0.bias"),
-                fc1_w: o("fc_1.weight"),
-                fc1_b: o("fc_1.bias"),
-                sc_w: o("shortcut.weight"),
-                rr: rr as u32,
+                fc0_w: s("fc_0").w_off,
+                fc0_b: s("fc_0").b_off,
+                fc1_w: s("fc_1").w_off,
+                fc1_b: s("fc_1").b_off,
+                sc_w: s("shortcut").w_off,
+                nin: if b == 0 { (2 * cfg.h).div_ceil(4) } else { 2 * hb } as u32,
                 ..Default::default()
             }
         };
-        // Uniforms are created up front so the bind groups can borrow them.
-        let first = uni(EncParams {
-            n: n as u32,
-            lin_w: self.off("encoder.fc_pos.weight"),
-            lin_b: self.off("encoder.fc_pos.bias"),
-            ..block(0)
-        });
-        let cellmax_u = uni(EncParams { n: (k * h) as u32, ..Default::default() });
-        let blocks_u: Vec<usize> = (1..ENCODER_BLOCKS)
+        let (pos, fc_c) = (self.enc_slot("encoder.fc_pos"), self.enc_slot("encoder.fc_c"));
+        let first = g.uniform("enc params", &EncParams { n: n as u32, lin_w: pos.w_off, lin_b: pos.b_off, ..block(0) });
+        let cellmax = g.uniform("enc params", &EncParams { n: (k * hb) as u32, ..Default::default() });
+        let blocks: Vec<wgpu::Buffer> = (1..ENCODER_BLOCKS)
             .map(|b| {
-                let last = b == ENCODER_BLOCKS - 1;
-                uni(EncParams {
+                let p = EncParams {
                     n: n as u32,
-                    lin_w: self.off("encoder.fc_c.weight"),
-                    lin_b: self.off("encoder.fc_c.bias"),
-                    last: last as u32,
+                    lin_w: fc_c.w_off,
+                    lin_b: fc_c.b_off,
+                    last: (b == ENCODER_BLOCKS - 1) as u32,
                     ..block(b)
-                })
+                };
+                g.uniform("enc params", &p)
             })
             .collect();
-        let scatter_u = uni(EncParams { n: (k * c_dim) as u32, rr: rr as u32, ..Default::default() });
+        let scatter = g.uniform("enc params", &EncParams { n: (k * cb) as u32, rr: rr as u32, ..Default::default() });
 
+        let mut enc = g.device.create_command_encoder(&Default::default());
         let p = &self.pipes;
-        self.pass(&mut enc, &p.enc_first, &[(0, &uniforms[first]), (1, &self.weights), (2, &pts_buf), (3, &net)], n as u64)?;
-        for &bu in &blocks_u {
+        self.pass(&mut enc, &p.enc_first, &[(0, &first), (1, &self.enc_w), (2, &pts_buf), (3, &net)], n as u64)?;
+        for u in &blocks {
             self.pass(
                 &mut enc,
                 &p.enc_cellmax,
-                &[(0, &uniforms[cellmax_u]), (3, &net), (5, &cell_start), (6, &cell_pts), (7, &cell_max)],
-                (k * h) as u64,
+                &[(0, &cellmax), (3, &net), (5, &cell_start), (6, &cell_pts), (7, &cell_max)],
+                (k * hb) as u64,
             )?;
             self.pass(
                 &mut enc,
                 &p.enc_block,
-                &[(0, &uniforms[bu]), (1, &self.weights), (3, &net), (4, &cell_of), (7, &cell_max), (8, &cfeat)],
+                &[(0, u), (1, &self.enc_w), (3, &net), (4, &cell_of), (7, &cell_max), (8, &cfeat)],
                 n as u64,
             )?;
         }
         self.pass(
             &mut enc,
             &p.enc_scatter,
-            &[(0, &uniforms[scatter_u]), (5, &cell_start), (6, &cell_pts), (8, &cfeat), (9, &cell_dst), (10, &scattered)],
-            (k * c_dim) as u64,
+            &[(0, &scatter), (5, &cell_start), (6, &cell_pts), (8, &cfeat), (9, &cell_dst), (10, &scattered)],
+            (k * cb) as u64,
         )?;
 
         let out = self.unet(&mut enc, scattered)?;
@@ -471,53 +566,58 @@ impl GpuNet {
         Ok(GpuPlanes { buffer: out, c_dim, reso: r })
     }
 
-    /// Records the U-Net over the three planes in `x` (`[3][c_dim][R][R]`); returns its output.
+    /// Records one U-Net layer: a uniform with `prm`, then the dispatch.
+    fn layer(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        prm: ConvParams,
+        entries: &[(u32, &wgpu::Buffer)],
+    ) -> Result<(), GpuError> {
+        let u = self.gpu.uniform("U-Net params", &prm);
+        let mut all = vec![(0, &u)];
+        all.extend_from_slice(entries);
+        self.pass(enc, pipeline, &all, prm.total as u64)
+    }
+
+    /// 3x3 conv + ReLU of `a` (`c_a` channels), or of the concatenation `[a | b]`, at reso `r`.
+    fn conv3x3(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        name: &str,
+        a: &wgpu::Buffer,
+        b: Option<&wgpu::Buffer>,
+        c_a: usize,
+        r: usize,
+    ) -> Result<wgpu::Buffer, GpuError> {
+        let s = self.unet_slot(name);
+        let c_out = s.n_out;
+        // Concatenation only on the up path, where the skip has as many channels as the output.
+        let c_b = if b.is_some() { c_out } else { 0 };
+        let groups = c_out.div_ceil(CONV_BLOCK);
+        let out = self.buf(name, 3 * c_out * r * r)?;
+        let total = 3 * groups * r * r.div_ceil(4);
+        let prm = ConvParams {
+            total: to_u32(name, total)?,
+            r: r as u32,
+            c_a: c_a as u32,
+            c_b: c_b as u32,
+            c_out: c_out as u32,
+            groups: groups as u32,
+            w_off: s.w_off,
+            b_off: s.b_off,
+            relu: 1,
+            _pad: [0; 3],
+        };
+        self.layer(enc, &self.pipes.conv3x3, prm, &[(1, a), (2, b.unwrap_or(a)), (3, &self.unet_w), (4, &out)])?;
+        Ok(out)
+    }
+
+    /// Records the U-Net over the three planes in `x` (`[3][c_dim][R][R]`); returns its output in
+    /// the channel-last layout of [`GpuPlanes`].
     fn unet(&self, enc: &mut wgpu::CommandEncoder, x: wgpu::Buffer) -> Result<wgpu::Buffer, GpuError> {
         let cfg = &self.config;
-        let g = &self.gpu;
         let d = cfg.unet_depth;
-        // Keeps every uniform alive until the command buffer is submitted (wgpu also keeps
-        // resources referenced by recorded commands alive; this is belt and braces).
-        let mut keep: Vec<wgpu::Buffer> = Vec::new();
-
-        let conv = |enc: &mut wgpu::CommandEncoder,
-                    keep: &mut Vec<wgpu::Buffer>,
-                    name: &str,
-                    a: &wgpu::Buffer,
-                    b: Option<&wgpu::Buffer>,
-                    c_a: usize,
-                    r: usize|
-         -> Result<wgpu::Buffer, GpuError> {
-            let s = self.convs[name];
-            let groups = s.c_out.div_ceil(4);
-            let c_b = s.c_in - c_a;
-            let out = self.buf(name, 3 * s.c_out * r * r)?;
-            let total = 3 * groups * r * r;
-            let u = g.uniform(
-                "conv params",
-                &ConvParams {
-                    total: to_u32(name, total)?,
-                    r: r as u32,
-                    c_a: c_a as u32,
-                    c_b: c_b as u32,
-                    c_out: s.c_out as u32,
-                    groups: groups as u32,
-                    w_off: s.w_off,
-                    b_off: s.b_off,
-                    relu: 1,
-                    _pad: [0; 3],
-                },
-            );
-            self.pass(
-                enc,
-                &self.pipes.conv3x3,
-                &[(0, &u), (1, a), (2, b.unwrap_or(a)), (3, &self.conv_w), (4, &out)],
-                total as u64,
-            )?;
-            keep.push(u);
-            Ok(out)
-        };
-
         let mut x = x;
         let mut c = cfg.c_dim;
         let mut r = cfg.reso;
@@ -526,15 +626,14 @@ impl GpuNet {
             if k > 0 {
                 r /= 2;
                 let out = self.buf("maxpool", 3 * c * r * r)?;
-                let total = 3 * c * r * r;
-                let u = g.uniform("pool params", &ConvParams { total: total as u32, r: r as u32, ..Default::default() });
-                self.pass(enc, &self.pipes.maxpool2, &[(0, &u), (1, &x), (4, &out)], total as u64)?;
-                keep.push(u);
+                let total = to_u32("maxpool", 3 * c * r * r)?;
+                let prm = ConvParams { total, r: r as u32, ..Default::default() };
+                self.layer(enc, &self.pipes.maxpool2, prm, &[(1, &x), (4, &out)])?;
                 x = out;
             }
-            let y = conv(enc, &mut keep, &format!("unet.down.{k}.conv0"), &x, None, c, r)?;
+            let y = self.conv3x3(enc, &format!("unet.down.{k}.conv0"), &x, None, c, r)?;
             c = cfg.filters(k);
-            x = conv(enc, &mut keep, &format!("unet.down.{k}.conv1"), &y, None, c, r)?;
+            x = self.conv3x3(enc, &format!("unet.down.{k}.conv1"), &y, None, c, r)?;
             if k + 1 < d {
                 skips.push(x.clone());
             }
@@ -542,64 +641,80 @@ impl GpuNet {
         for k in (0..d - 1).rev() {
             let f = cfg.filters(k);
             let name = format!("unet.up.{k}");
+            let s = self.unet_slot(&format!("{name}.upconv"));
             r *= 2;
             let up = self.buf("upconv", 3 * f * r * r)?;
-            let total = 3 * f * r * r;
-            let u = g.uniform(
-                "upconv params",
-                &ConvParams {
-                    total: total as u32,
-                    r: r as u32,
-                    c_a: c as u32,
-                    c_out: f as u32,
-                    w_off: self.off(&format!("{name}.upconv.weight")),
-                    b_off: self.off(&format!("{name}.upconv.bias")),
-                    ..Default::default()
-                },
-            );
-            self.pass(enc, &self.pipes.upconv2, &[(0, &u), (1, &x), (4, &up), (5, &self.weights)], total as u64)?;
-            keep.push(u);
-            let y = conv(enc, &mut keep, &format!("{name}.conv0"), &up, Some(&skips[k]), f, r)?;
-            x = conv(enc, &mut keep, &format!("{name}.conv1"), &y, None, f, r)?;
-            c = f;
-        }
-        let out = self.buf("planes", 3 * cfg.c_dim * r * r)?;
-        let total = 3 * cfg.c_dim * r * r;
-        let u = g.uniform(
-            "final params",
-            &ConvParams {
-                total: total as u32,
+            let groups = f.div_ceil(CONV_BLOCK);
+            let prm = ConvParams {
+                total: to_u32("upconv", 3 * groups * (r / 2) * (r / 2))?,
                 r: r as u32,
                 c_a: c as u32,
-                c_out: cfg.c_dim as u32,
-                w_off: self.off("unet.final.weight"),
-                b_off: self.off("unet.final.bias"),
+                c_out: f as u32,
+                groups: groups as u32,
+                w_off: s.w_off,
+                b_off: s.b_off,
                 ..Default::default()
-            },
-        );
-        self.pass(enc, &self.pipes.conv1x1, &[(0, &u), (1, &x), (4, &out), (5, &self.weights)], total as u64)?;
-        keep.push(u);
+            };
+            self.layer(enc, &self.pipes.upconv2, prm, &[(1, &x), (3, &self.unet_w), (4, &up)])?;
+            let y = self.conv3x3(enc, &format!("{name}.conv0"), &up, Some(&skips[k]), f, r)?;
+            x = self.conv3x3(enc, &format!("{name}.conv1"), &y, None, f, r)?;
+            c = f;
+        }
+        let s = self.unet_slot("unet.final");
+        let cb = cfg.c_dim.div_ceil(4);
+        let out = self.buf("planes", 3 * r * r * 4 * cb)?;
+        let groups = cfg.c_dim.div_ceil(CONV_BLOCK);
+        let prm = ConvParams {
+            total: to_u32("final", 3 * groups * r * r)?,
+            r: r as u32,
+            c_a: c as u32,
+            c_out: cfg.c_dim as u32,
+            groups: groups as u32,
+            w_off: s.w_off,
+            b_off: s.b_off,
+            ..Default::default()
+        };
+        self.layer(enc, &self.pipes.final1x1, prm, &[(1, &x), (3, &self.unet_w), (5, &out)])?;
         Ok(out)
     }
 
     /// Uploads CPU planes (e.g. from [`super::cpu::encode`] or a fixture).
     pub fn upload_planes(&self, planes: &Planes) -> Result<GpuPlanes, GpuError> {
-        if (planes.c_dim, planes.reso) != (self.config.c_dim, self.config.reso) {
+        let (c_dim, r) = (planes.c_dim, planes.reso);
+        if (c_dim, r) != (self.config.c_dim, self.config.reso) || planes.data.len() != 3 * c_dim * r * r {
             return Err(GpuError::Kernel(format!(
-                "planes are {}x{}², the network needs {}x{}²",
-                planes.c_dim, planes.reso, self.config.c_dim, self.config.reso
+                "planes are {c_dim} x {r}², the network needs {} x {}²",
+                self.config.c_dim, self.config.reso
             )));
         }
-        self.gpu.check_binding::<f32>("planes", planes.data.len())?;
-        Ok(GpuPlanes { buffer: self.gpu.upload("planes", &planes.data), c_dim: planes.c_dim, reso: planes.reso })
+        let gp = GpuPlanes { buffer: self.gpu.upload("planes", &[0u32]), c_dim, reso: r };
+        let stride = gp.stride();
+        let mut data = vec![0.0f32; gp.len()];
+        for p in 0..3 {
+            for ch in 0..c_dim {
+                for pix in 0..r * r {
+                    data[(p * r * r + pix) * stride + ch] = planes.data[(p * c_dim + ch) * r * r + pix];
+                }
+            }
+        }
+        self.gpu.check_binding::<f32>("planes", data.len())?;
+        Ok(GpuPlanes { buffer: self.gpu.upload("planes", &data), ..gp })
     }
 
-    /// Downloads planes.
+    /// Downloads planes, in the contract's `[3][c_dim][reso][reso]` layout.
     pub async fn read_planes(&self, planes: &GpuPlanes) -> Result<Planes, GpuError> {
-        let data = self.gpu.read::<f32>(&planes.buffer, planes.len()).await?;
-        Ok(Planes { c_dim: planes.c_dim, reso: planes.reso, data })
+        let raw = self.gpu.read::<f32>(&planes.buffer, planes.len()).await?;
+        let (c_dim, r, stride) = (planes.c_dim, planes.reso, planes.stride());
+        let mut out = Planes::zeros(c_dim, r);
+        for p in 0..3 {
+            for ch in 0..c_dim {
+                for pix in 0..r * r {
+                    out.data[(p * c_dim + ch) * r * r + pix] = raw[(p * r * r + pix) * stride + ch];
+                }
+            }
+        }
+        Ok(out)
     }
-
     /// Queries (normalised coordinates) → (features `Q × c_dim`, row-major; logits `Q`), in
     /// chunks of [`GpuNet::chunk_queries`].
     pub async fn decode(&self, planes: &GpuPlanes, queries: &[[f32; 3]]) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
@@ -635,11 +750,16 @@ impl GpuNet {
                 reso: cfg.reso as u32,
                 divisor: cfg.plane_divisor(),
                 uv_max: UV_MAX,
+                n_blocks: cfg.n_blocks_dec as u32,
+                hb: cfg.h_dec.div_ceil(4) as u32,
+                cb: cfg.c_dim.div_ceil(4) as u32,
+                _pad: 0,
             };
             g.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
             g.queue.write_buffer(&q_buf, 0, bytemuck::cast_slice(part));
             let mut enc = g.device.create_command_encoder(&Default::default());
-            let groups = match g.dispatch_linear(m as u64, WG) {
+            // Two queries per invocation.
+            let groups = match g.dispatch_linear(m.div_ceil(2) as u64, WG) {
                 Ok(gr) => gr,
                 Err(e) => {
                     result = Err(e);

@@ -114,7 +114,7 @@ impl NetConfig {
             return Err(NetError::Metadata(format!("the deepest U-Net level has {top} channels (> {MAX_WIDTH})")));
         }
         let step = 1usize << (cfg.unet_depth - 1);
-        if cfg.reso % step != 0 {
+        if !cfg.reso.is_multiple_of(step) {
             return Err(NetError::Metadata(format!(
                 "reso {} is not divisible by 2^(unet_depth-1) = {step}",
                 cfg.reso
@@ -136,7 +136,7 @@ impl NetConfig {
     /// Every tensor this config implies, with its PyTorch shape, in a fixed order.
     pub fn expected_tensors(&self) -> Vec<(String, Vec<usize>)> {
         let mut t: Vec<(String, Vec<usize>)> = Vec::new();
-        let mut linear = |t: &mut Vec<(String, Vec<usize>)>, name: &str, i: usize, o: usize, bias: bool| {
+        let linear = |t: &mut Vec<(String, Vec<usize>)>, name: &str, i: usize, o: usize, bias: bool| {
             t.push((format!("{name}.weight"), vec![o, i]));
             if bias {
                 t.push((format!("{name}.bias"), vec![o]));
@@ -412,10 +412,5 @@ impl Weights {
     /// A tensor the config guarantees (loading checked it), for the forward passes.
     pub(crate) fn t(&self, name: &str) -> &[f32] {
         self.get(name).unwrap_or_else(|| panic!("tensor {name} was validated at load"))
-    }
-
-    /// Offset of a tensor the config guarantees.
-    pub(crate) fn off(&self, name: &str) -> usize {
-        self.tensors.get(name).unwrap_or_else(|| panic!("tensor {name} was validated at load")).offset
     }
 }
