@@ -590,3 +590,22 @@ fn length_scale_init_sweep() {
         }
     }
 }
+
+/// A flat loss with a falling training error: the early stop must wait for the error too,
+/// since the error is what the tuner keeps the best of.
+#[test]
+fn early_stop_waits_while_the_training_error_falls() {
+    struct FlatLoss(usize);
+    impl nkrr::krr::Objective for FlatLoss {
+        fn eval_grad(&mut self, p: &Params) -> Result<(Eval, nkrr::krr::Grad), KrrError> {
+            self.0 += 1;
+            let eval = Eval { loss: 1.0, data_fit: 1.0 / self.0 as f64, rkhs_norm2: 0.0, d_term: 0.0, t1: 0.0, t2: 0.0, beta: vec![0.0] };
+            Ok((eval, nkrr::krr::Grad { log_s: vec![1e-3; p.log_s.len()], z: vec![1e-3; p.z.len()] }))
+        }
+    }
+    let init = Params { log_s: vec![0.0], z: vec![0.0] };
+    let ts = TuneSettings { steps: 40, patience: 5, ..Default::default() };
+    let r = tune(&mut FlatLoss(0), init.clone(), &ts, |_, _| true).unwrap();
+    assert_eq!(r.stop, StopReason::MaxSteps);
+    assert_eq!(r.best_step, 40);
+}

@@ -3,8 +3,9 @@
 //! Defaults follow the paper: Adam, lr 0.1, 100 steps, and the returned parameters are those with
 //! the **lowest training squared error** `(1/n)‖g(X) − y‖²` seen — not the lowest loss, and not
 //! the last iterate: the objective is a model-selection criterion whose minimiser need not fit
-//! best, and Adam at lr 0.1 is not monotone. On top of the paper: an early stop when the loss has
-//! not improved by a relative `rel_tol` for `patience` steps, switches to freeze θ (the
+//! best, and Adam at lr 0.1 is not monotone. On top of the paper: an early stop when neither the
+//! loss nor the training error has improved by a relative `rel_tol` for `patience` steps (the
+//! loss alone can plateau while the error we keep the best of still falls), switches to freeze θ (the
 //! length-scales) or Z, and a progress callback that can cancel.
 //!
 //! The loop is generic over [`Objective`], so the f64 [`Reference`](super::Reference) and a GPU
@@ -40,8 +41,8 @@ pub struct TuneSettings {
     pub tune_theta: bool,
     /// Tune the inducing points.
     pub tune_z: bool,
-    /// Stop after this many consecutive evaluations without a relative loss improvement of at
-    /// least `rel_tol` over the best loss so far (0 disables the early stop).
+    /// Stop after this many consecutive evaluations in which neither the loss nor the training
+    /// error improved by at least `rel_tol` (relative) over its best so far (0: never stop early).
     pub patience: usize,
     pub rel_tol: f64,
 }
@@ -128,6 +129,7 @@ where
     let mut best: Option<(Params, Eval, usize)> = None;
     let mut history = Vec::new();
     let mut best_loss = f64::INFINITY;
+    let mut best_fit = f64::INFINITY;
     let mut stale = 0;
     let mut stop = StopReason::MaxSteps;
 
@@ -148,7 +150,7 @@ where
         };
         history.push(StepLog { step, loss: eval.loss, data_fit: eval.data_fit });
         let improved_fit = best.as_ref().is_none_or(|b| eval.data_fit < b.1.data_fit);
-        let loss = eval.loss;
+        let (loss, fit) = (eval.loss, eval.data_fit);
         let go_on = progress(step, &eval);
         if improved_fit {
             best = Some((params.clone(), eval, step));
@@ -161,8 +163,11 @@ where
             stop = if nothing { StopReason::NothingToTune } else { StopReason::MaxSteps };
             break;
         }
-        if step == 0 || loss < best_loss - s.rel_tol * best_loss.abs() {
-            best_loss = loss;
+        let loss_improved = loss < best_loss - s.rel_tol * best_loss.abs();
+        let fit_improved = fit < best_fit - s.rel_tol * best_fit.abs();
+        best_loss = best_loss.min(loss);
+        best_fit = best_fit.min(fit);
+        if step == 0 || loss_improved || fit_improved {
             stale = 0;
         } else {
             stale += 1;
