@@ -56,6 +56,9 @@ pub struct Settings {
     pub tune_z: bool,
     /// Neighbour rank whose distance scales the offsets of the extra training points.
     pub knn_k: usize,
+    /// Ablation "w/o features": regress on Fourier-encoded coordinates instead of the
+    /// network's features (the pseudo-labels still come from the network).
+    pub euclidean: bool,
 }
 
 impl Default for Settings {
@@ -71,6 +74,7 @@ impl Default for Settings {
             tune_theta: true,
             tune_z: true,
             knn_k: crate::sample::DEFAULT_K,
+            euclidean: false,
         }
     }
 }
@@ -151,6 +155,27 @@ pub struct TuningSummary {
 struct KrrFit {
     params: krr::Params,
     beta: Vec<f64>,
+    euclidean: bool,
+}
+
+/// Frequencies of the coordinate encoding used by the "w/o features" ablation: x, and
+/// sin/cos(2^k π x) for k < FOURIER_OCTAVES, per axis (3 + 6·5 = 33 dimensions).
+pub const FOURIER_OCTAVES: usize = 5;
+
+/// The regression's input for the "w/o features" ablation.
+pub fn fourier_encode(points: &[[f32; 3]]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(points.len() * (3 + 6 * FOURIER_OCTAVES));
+    for p in points {
+        out.extend_from_slice(p);
+        for k in 0..FOURIER_OCTAVES {
+            let w = std::f32::consts::PI * (1u32 << k) as f32;
+            for &x in p {
+                out.push((w * x).sin());
+                out.push((w * x).cos());
+            }
+        }
+    }
+    out
 }
 
 /// Seconds since an arbitrary origin; `Instant` does not exist on wasm32-unknown-unknown.
@@ -255,6 +280,7 @@ impl Engine {
                 match fit {
                     None => Ok(logits),
                     Some(fit) => {
+                        let features = if fit.euclidean { fourier_encode(&pts) } else { features };
                         let x: Vec<f64> = features.iter().map(|&v| v as f64).collect();
                         let g = krr::predict(&fit.beta, &fit.params.z, &fit.params.log_s, &x)
                             .map_err(|e| FieldError(e.to_string()))?;
@@ -291,8 +317,12 @@ impl Engine {
         all.extend_from_slice(&extra);
         let (features, logits) = self.net.decode(planes, &all).await?;
         let y: Vec<f32> = logits.iter().enumerate().map(|(i, &l)| if i < points.len() { 0.0 } else { l }).collect();
-        let d = self.net.config().c_dim;
-        let problem = krr::Problem::from_f32(&features, &y, d).map_err(PipelineError::Krr)?;
+        let (x, d) = if settings.euclidean {
+            (fourier_encode(&all), 3 + 6 * FOURIER_OCTAVES)
+        } else {
+            (features, self.net.config().c_dim)
+        };
+        let problem = krr::Problem::from_f32(&x, &y, d).map_err(PipelineError::Krr)?;
         Ok((problem, points.len()))
     }
 }
@@ -333,5 +363,5 @@ fn fit_krr(
         best_data_fit: result.eval.data_fit,
         length_scales: result.params.length_scales(),
     };
-    Ok((KrrFit { beta: result.eval.beta, params: result.params }, summary))
+    Ok((KrrFit { beta: result.eval.beta, params: result.params, euclidean: settings.euclidean }, summary))
 }

@@ -17,6 +17,9 @@ USAGE:
         --steps N                  Adam steps of the test-time tuning        [100]
         --lambda X                 ridge parameter of the KRR                [0.001]
         --no-tune | --no-theta | --no-z   the paper's ablations
+        --euclidean                KRR on Fourier-encoded coordinates, not features (ablation)
+    nkrr bench [--sizes 3000,10000,50000] [--ms 500,1000] [--steps N] [--method nkrr|network]
+                            per-stage times on a synthetic noisy torus (adapter printed)
     nkrr gpu                the GPU adapter wgpu finds here and its limits
     nkrr --help | --version
 ";
@@ -29,6 +32,7 @@ fn main() -> ExitCode {
             _ => Err(usage("info takes exactly one PLY path")),
         },
         Some("reconstruct") => reconstruct(&args[1..]),
+        Some("bench") => bench(&args[1..]),
         Some("gpu") => gpu(),
         Some("-h" | "--help" | "help") => {
             print!("{USAGE}");
@@ -133,6 +137,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             "--no-tune" => settings.steps = 0,
             "--no-theta" => settings.tune_theta = false,
             "--no-z" => settings.tune_z = false,
+            "--euclidean" => settings.euclidean = true,
             s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
             s if input.is_none() => input = Some(s.to_string()),
             s => return Err(usage(&format!("unexpected argument '{s}'"))),
@@ -199,4 +204,73 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
 
 fn parse<T: std::str::FromStr>(s: &str, name: &str) -> Result<T, Failure> {
     s.parse().map_err(|_| usage(&format!("{name}: '{s}' is not a valid value")))
+}
+
+/// A torus (R = 0.3, r = 0.12) sampled uniformly by area, with Gaussian noise: a closed genus-1
+/// shape of known size for benchmarks that must not depend on data files.
+fn synthetic_torus(n: usize, noise: f64, seed: u64) -> nkrr::PointCloud {
+    use std::f64::consts::TAU;
+    let (big, small) = (0.3, 0.12);
+    let mut rng = nkrr::rng::SplitMix64(seed);
+    let mut positions = Vec::with_capacity(n);
+    while positions.len() < n {
+        let (u, v) = (TAU * rng.unit(), TAU * rng.unit());
+        // Area element ∝ (R + r cos v): accept with that weight.
+        if rng.unit() * (big + small) > big + small * v.cos() {
+            continue;
+        }
+        let ring = big + small * v.cos();
+        let p = [ring * u.cos(), small * v.sin(), ring * u.sin()];
+        positions.push(p.map(|x| (x + noise * rng.normal()) as f32));
+    }
+    nkrr::PointCloud { positions, ..Default::default() }
+}
+
+fn list(s: &str, name: &str) -> Result<Vec<usize>, Failure> {
+    s.split(',').map(|x| parse::<usize>(x.trim(), name)).collect()
+}
+
+fn bench(args: &[String]) -> Result<(), Failure> {
+    use nkrr::pipeline::{Engine, Method, Settings};
+    let mut sizes = vec![3000, 10000, 50000];
+    let mut ms = vec![500, 1000];
+    let mut settings = Settings { method: Method::Nkrr, steps: 10, ..Settings::default() };
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut value = |name: &str| it.next().cloned().ok_or_else(|| usage(&format!("{name} needs a value")));
+        match a.as_str() {
+            "--sizes" => sizes = list(&value(a)?, a)?,
+            "--ms" => ms = list(&value(a)?, a)?,
+            "--steps" => settings.steps = parse(&value(a)?, a)?,
+            "--method" => settings.method = value(a)?.parse().map_err(|e: String| usage(&e))?,
+            "--resolution" => settings.resolution = parse(&value(a)?, a)?,
+            s => return Err(usage(&format!("unknown bench option '{s}'"))),
+        }
+    }
+    let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
+    println!("adapter: {}", gpu.describe());
+    let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
+    if settings.method == Method::Network {
+        ms = vec![0];
+    }
+    println!("method {:?}, {} Adam steps, resolution {}", settings.method, settings.steps, settings.resolution);
+    println!("| points | m | features s | pairs s | tuning s | s/step | mesh s | total s | field evals |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    for &n in &sizes {
+        let cloud = synthetic_torus(n, 0.005, n as u64);
+        for &m in &ms {
+            let s = Settings { m: m.max(1), ..settings.clone() };
+            let t0 = nkrr::pipeline::now();
+            let rec = pollster::block_on(engine.reconstruct(&cloud, &s, &mut |_| true))
+                .map_err(|e| fail(format!("{n} points, m {m}: {e}")))?;
+            let total = nkrr::pipeline::now() - t0;
+            let t = |stage: &str| rec.timings.iter().find(|(k, _)| *k == stage).map_or(0.0, |(_, v)| *v);
+            let per_step = rec.tuning.as_ref().map_or(0.0, |x| t("tuning") / (x.steps_run + 1) as f64);
+            println!(
+                "| {n} | {m} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} |",
+                t("features"), t("pairs"), t("tuning"), per_step, t("mesh"), total, rec.extract.refine.evaluations
+            );
+        }
+    }
+    Ok(())
 }
