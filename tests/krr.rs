@@ -609,3 +609,34 @@ fn early_stop_waits_while_the_training_error_falls() {
     assert_eq!(r.stop, StopReason::MaxSteps);
     assert_eq!(r.best_step, 40);
 }
+
+/// The asynchronous driver (for the browser's GPU objective) takes the same steps as the
+/// blocking one.
+#[test]
+fn async_tuning_matches_blocking_tuning() {
+    let (n, m) = (150, 10);
+    let p = random_problem(n, 3, 31);
+    let init = random_params(&p, m, 32);
+    let settings = Settings::new(1e-3, m);
+    let ts = TuneSettings { steps: 15, ..Default::default() };
+    let blocking = tune(&mut Reference { problem: &p, settings }, init.clone(), &ts, |_, _| true).unwrap();
+    let asynchronous = pollster::block_on(nkrr::krr::tune_async(
+        |params: Params, needs_grad: bool| {
+            let p = &p;
+            async move {
+                if needs_grad {
+                    objective_and_grad(p, &params, &settings).map(|(e, g)| (e, Some(g)))
+                } else {
+                    objective(p, &params, &settings).map(|e| (e, None))
+                }
+            }
+        },
+        init,
+        &ts,
+        |_, _| true,
+    ))
+    .unwrap();
+    assert_eq!(blocking.params, asynchronous.params);
+    assert_eq!(blocking.history, asynchronous.history);
+    assert_eq!(blocking.stop, asynchronous.stop);
+}

@@ -112,80 +112,158 @@ where
     O: Objective + ?Sized,
     F: FnMut(usize, &Eval) -> bool,
 {
-    let s = settings;
-    let ok = s.lr > 0.0
-        && s.lr.is_finite()
-        && (0.0..1.0).contains(&s.beta1)
-        && (0.0..1.0).contains(&s.beta2)
-        && s.eps > 0.0
-        && s.rel_tol >= 0.0;
-    if !ok {
-        return Err(KrrError::Setting(format!("tuning settings out of range: {s:?}")));
-    }
-    let nothing = !s.tune_theta && !s.tune_z;
-    let mut params = init;
-    let mut adam_s = Adam::new(params.log_s.len());
-    let mut adam_z = Adam::new(params.z.len());
-    let mut best: Option<(Params, Eval, usize)> = None;
-    let mut history = Vec::new();
-    let mut best_loss = f64::INFINITY;
-    let mut best_fit = f64::INFINITY;
-    let mut stale = 0;
-    let mut stop = StopReason::MaxSteps;
-
-    for step in 0..=s.steps {
-        let last = step == s.steps || nothing;
-        let result = if last {
-            objective.eval(&params).map(|e| (e, None))
+    let mut tuner = Tuner::new(init, settings)?;
+    while let Some((params, needs_grad)) = tuner.next_request() {
+        let result = if needs_grad {
+            objective.eval_grad(params).map(|(e, g)| (e, Some(g)))
         } else {
-            objective.eval_grad(&params).and_then(|(e, g)| check_grad(&params, &g).map(|_| (e, Some(g))))
+            objective.eval(params).map(|e| (e, None))
         };
+        tuner.supply(result, &mut progress)?;
+    }
+    Ok(tuner.finish())
+}
+
+/// [`tune`] with an asynchronous objective (the browser's GPU readbacks resolve on its event
+/// loop): `evaluate(params, needs_grad)` resolves to the evaluation and, when asked, the gradient.
+pub async fn tune_async<E, Fut, F>(mut evaluate: E, init: Params, settings: &TuneSettings, mut progress: F) -> Result<TuneResult, KrrError>
+where
+    E: FnMut(Params, bool) -> Fut,
+    Fut: std::future::Future<Output = Result<(Eval, Option<Grad>), KrrError>>,
+    F: FnMut(usize, &Eval) -> bool,
+{
+    let mut tuner = Tuner::new(init, settings)?;
+    while let Some((params, needs_grad)) = tuner.next_request() {
+        let result = evaluate(params.clone(), needs_grad).await;
+        tuner.supply(result, &mut progress)?;
+    }
+    Ok(tuner.finish())
+}
+
+/// The tuning loop as a state machine: it says which parameters to evaluate next and takes the
+/// result, so blocking and asynchronous drivers run exactly the same steps.
+pub struct Tuner {
+    s: TuneSettings,
+    nothing: bool,
+    params: Params,
+    adam_s: Adam,
+    adam_z: Adam,
+    best: Option<(Params, Eval, usize)>,
+    history: Vec<StepLog>,
+    best_loss: f64,
+    best_fit: f64,
+    stale: usize,
+    step: usize,
+    stop: Option<StopReason>,
+}
+
+impl Tuner {
+    pub fn new(init: Params, settings: &TuneSettings) -> Result<Tuner, KrrError> {
+        let s = *settings;
+        let ok = s.lr > 0.0
+            && s.lr.is_finite()
+            && (0.0..1.0).contains(&s.beta1)
+            && (0.0..1.0).contains(&s.beta2)
+            && s.eps > 0.0
+            && s.rel_tol >= 0.0;
+        if !ok {
+            return Err(KrrError::Setting(format!("tuning settings out of range: {s:?}")));
+        }
+        Ok(Tuner {
+            nothing: !s.tune_theta && !s.tune_z,
+            adam_s: Adam::new(init.log_s.len()),
+            adam_z: Adam::new(init.z.len()),
+            params: init,
+            s,
+            best: None,
+            history: Vec::new(),
+            best_loss: f64::INFINITY,
+            best_fit: f64::INFINITY,
+            stale: 0,
+            step: 0,
+            stop: None,
+        })
+    }
+
+    fn is_last(&self) -> bool {
+        self.step == self.s.steps || self.nothing
+    }
+
+    /// The parameters to evaluate next and whether their gradient is needed (the final
+    /// iterate's is not); `None` once the loop has stopped.
+    pub fn next_request(&self) -> Option<(&Params, bool)> {
+        match self.stop {
+            Some(_) => None,
+            None => Some((&self.params, !self.is_last())),
+        }
+    }
+
+    /// Takes the evaluation of the parameters from [`Tuner::next_request`].
+    pub fn supply<F>(&mut self, result: Result<(Eval, Option<Grad>), KrrError>, progress: &mut F) -> Result<(), KrrError>
+    where
+        F: FnMut(usize, &Eval) -> bool,
+    {
+        let s = self.s;
+        let step = self.step;
+        let last = self.is_last();
+        let result = result.and_then(|(e, g)| match (&g, last) {
+            (Some(g), _) => check_grad(&self.params, g).map(|_| (e, Some(g.clone()))),
+            (None, true) => Ok((e, None)),
+            (None, false) => Err(KrrError::Shape("the tuner needs a gradient for this step".into())),
+        });
         let (eval, grad) = match result {
             Ok(v) => v,
-            Err(e) if best.is_none() => return Err(e),
+            Err(e) if self.best.is_none() => return Err(e),
             Err(e) => {
-                stop = StopReason::Failed(e);
-                break;
+                self.stop = Some(StopReason::Failed(e));
+                return Ok(());
             }
         };
-        history.push(StepLog { step, loss: eval.loss, data_fit: eval.data_fit });
-        let improved_fit = best.as_ref().is_none_or(|b| eval.data_fit < b.1.data_fit);
+        self.history.push(StepLog { step, loss: eval.loss, data_fit: eval.data_fit });
+        let improved_fit = self.best.as_ref().is_none_or(|b| eval.data_fit < b.1.data_fit);
         let (loss, fit) = (eval.loss, eval.data_fit);
         let go_on = progress(step, &eval);
         if improved_fit {
-            best = Some((params.clone(), eval, step));
+            self.best = Some((self.params.clone(), eval, step));
         }
         if !go_on {
-            stop = StopReason::Cancelled;
-            break;
+            self.stop = Some(StopReason::Cancelled);
+            return Ok(());
         }
         if last {
-            stop = if nothing { StopReason::NothingToTune } else { StopReason::MaxSteps };
-            break;
+            self.stop = Some(if self.nothing { StopReason::NothingToTune } else { StopReason::MaxSteps });
+            return Ok(());
         }
-        let loss_improved = loss < best_loss - s.rel_tol * best_loss.abs();
-        let fit_improved = fit < best_fit - s.rel_tol * best_fit.abs();
-        best_loss = best_loss.min(loss);
-        best_fit = best_fit.min(fit);
+        let loss_improved = loss < self.best_loss - s.rel_tol * self.best_loss.abs();
+        let fit_improved = fit < self.best_fit - s.rel_tol * self.best_fit.abs();
+        self.best_loss = self.best_loss.min(loss);
+        self.best_fit = self.best_fit.min(fit);
         if step == 0 || loss_improved || fit_improved {
-            stale = 0;
+            self.stale = 0;
         } else {
-            stale += 1;
-            if s.patience > 0 && stale >= s.patience {
-                stop = StopReason::Converged;
-                break;
+            self.stale += 1;
+            if s.patience > 0 && self.stale >= s.patience {
+                self.stop = Some(StopReason::Converged);
+                return Ok(());
             }
         }
-        let grad = grad.expect("gradient requested for non-final steps");
+        let grad = grad.expect("checked above: non-final steps carry a gradient");
         if s.tune_theta {
-            adam_s.step(&mut params.log_s, &grad.log_s, s);
+            self.adam_s.step(&mut self.params.log_s, &grad.log_s, &s);
         }
         if s.tune_z {
-            adam_z.step(&mut params.z, &grad.z, s);
+            self.adam_z.step(&mut self.params.z, &grad.z, &s);
         }
+        self.step += 1;
+        Ok(())
     }
-    let (params, eval, best_step) = best.expect("at least one evaluation succeeded");
-    Ok(TuneResult { params, eval, best_step, stop, history })
+
+    /// The best parameters seen (at least one evaluation must have succeeded, which
+    /// [`Tuner::supply`] guarantees by returning the first failure as an error).
+    pub fn finish(self) -> TuneResult {
+        let (params, eval, best_step) = self.best.expect("at least one evaluation succeeded");
+        TuneResult { params, eval, best_step, stop: self.stop.unwrap_or(StopReason::MaxSteps), history: self.history }
+    }
 }
 
 fn check_grad(params: &Params, g: &Grad) -> Result<(), KrrError> {
