@@ -32,7 +32,7 @@ pub use reference::{
     objective, objective_and_grad, predict, Eval, Grad, Params, Problem, Reference, Settings,
     Weighting,
 };
-pub use tune::{tune, Objective, StepLog, StopReason, TuneResult, TuneSettings};
+pub use tune::{tune, tune_async, Objective, StepLog, StopReason, TuneResult, TuneSettings, Tuner};
 
 /// Why an evaluation, a solve or a tuning run could not proceed.
 #[derive(Clone, Debug, PartialEq)]
