@@ -19,6 +19,7 @@
 //! matrices are reported as [`KrrError`]. (The low-level [`linalg`] helpers assert their slice
 //! lengths: a mismatch there is a bug in the caller, not bad data.)
 
+pub mod gpu;
 pub mod init;
 pub mod kernel;
 pub mod linalg;
@@ -27,6 +28,7 @@ pub mod tune;
 
 use std::fmt;
 
+pub use gpu::{GpuObjective, GpuPredictor, KrrGpuError, PhaseTimings};
 pub use init::{init_length_scales, init_params, init_z, LengthScaleInit};
 pub use reference::{
     objective, objective_and_grad, predict, Eval, Grad, Params, Problem, Reference, Settings,
