@@ -59,6 +59,31 @@ pub struct Settings {
     /// Ablation "w/o features": regress on Fourier-encoded coordinates instead of the
     /// network's features (the pseudo-labels still come from the network).
     pub euclidean: bool,
+    /// Where the regression's objective runs.
+    pub krr_backend: KrrBackend,
+}
+
+/// Where the kernel regression's objective and gradient are computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KrrBackend {
+    /// The GPU on real GPUs; the f64 CPU reference on software adapters (lavapipe,
+    /// SwiftShader), where the GPU path's exact fixed-point Gram matrix is measured to be ~5x
+    /// slower than the CPU (docs/krr.md).
+    Auto,
+    Gpu,
+    Cpu,
+}
+
+impl std::str::FromStr for KrrBackend {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(KrrBackend::Auto),
+            "gpu" => Ok(KrrBackend::Gpu),
+            "cpu" => Ok(KrrBackend::Cpu),
+            _ => Err(format!("unknown backend '{s}' (expected auto, gpu or cpu)")),
+        }
+    }
 }
 
 impl Default for Settings {
@@ -75,6 +100,7 @@ impl Default for Settings {
             tune_z: true,
             knn_k: crate::sample::DEFAULT_K,
             euclidean: false,
+            krr_backend: KrrBackend::Auto,
         }
     }
 }
@@ -139,6 +165,8 @@ pub struct Reconstruction {
 /// What the kernel regression's tuning did, for reports and benchmarks.
 #[derive(Clone, Debug)]
 pub struct TuningSummary {
+    /// "gpu" or "cpu": where the objective ran.
+    pub backend: &'static str,
     pub n: usize,
     pub m: usize,
     pub steps_run: usize,
@@ -156,6 +184,22 @@ struct KrrFit {
     params: krr::Params,
     beta: Vec<f64>,
     euclidean: bool,
+    /// The GPU predictor when the regression ran on the GPU; else the f64 CPU one is used.
+    predictor: Option<krr::GpuPredictor>,
+}
+
+impl KrrFit {
+    async fn predict(&self, features: &[f32]) -> Result<Vec<f32>, String> {
+        match &self.predictor {
+            Some(p) => p.predict(&self.beta, &self.params.z, &self.params.log_s, features).await.map_err(|e| e.to_string()),
+            None => {
+                let x: Vec<f64> = features.iter().map(|&v| v as f64).collect();
+                krr::predict(&self.beta, &self.params.z, &self.params.log_s, &x)
+                    .map(|g| g.into_iter().map(|v| v as f32).collect())
+                    .map_err(|e| e.to_string())
+            }
+        }
+    }
 }
 
 /// Frequencies of the coordinate encoding used by the "w/o features" ablation: x, and
@@ -245,7 +289,7 @@ impl Engine {
             let (problem, n_surface) = self.training_pairs(&planes, &points, settings).await?;
             timings.push(("pairs", now() - t));
             let t = now();
-            let (fit, summary) = fit_krr(&problem, settings, progress)?;
+            let (fit, summary) = fit_krr(&self.gpu, &problem, settings, progress).await?;
             timings.push(("tuning", now() - t));
             let _ = n_surface;
             tuning = Some(summary);
@@ -281,10 +325,7 @@ impl Engine {
                     None => Ok(logits),
                     Some(fit) => {
                         let features = if fit.euclidean { fourier_encode(&pts) } else { features };
-                        let x: Vec<f64> = features.iter().map(|&v| v as f64).collect();
-                        let g = krr::predict(&fit.beta, &fit.params.z, &fit.params.log_s, &x)
-                            .map_err(|e| FieldError(e.to_string()))?;
-                        Ok(g.into_iter().map(|v| v as f32).collect())
+                        fit.predict(&features).await.map_err(FieldError)
                     }
                 }
             }
@@ -329,7 +370,8 @@ impl Engine {
 
 /// Initialises (Z from rows of X, length-scales from the features' spread) and tunes the
 /// Nyström KRR, keeping the parameters with the lowest training error (method.md §4).
-fn fit_krr(
+async fn fit_krr(
+    gpu: &Gpu,
     problem: &krr::Problem,
     settings: &Settings,
     progress: &mut dyn FnMut(&Stage) -> bool,
@@ -337,21 +379,41 @@ fn fit_krr(
     let m = settings.m.clamp(1, problem.n());
     let init = krr::init_params(problem, m, 3, LengthScaleInit::default());
     let ks = krr::Settings::new(settings.lambda, m);
-    let mut objective = krr::Reference { problem, settings: ks };
     let ts = TuneSettings {
         steps: settings.steps,
         tune_theta: settings.tune_theta,
         tune_z: settings.tune_z,
         ..Default::default()
     };
-    let initial = objective.eval(&init).map_err(PipelineError::Krr)?;
+    let on_gpu = match settings.krr_backend {
+        KrrBackend::Gpu => true,
+        KrrBackend::Cpu => false,
+        KrrBackend::Auto => gpu.info.device_type != wgpu::DeviceType::Cpu,
+    };
     let of = settings.steps;
-    let result = krr::tune(&mut objective, init, &ts, |step, eval| progress(&Stage::Tuning { step, of, loss: eval.loss }))
-        .map_err(PipelineError::Krr)?;
+    let report = |step: usize, eval: &krr::Eval| progress(&Stage::Tuning { step, of, loss: eval.loss });
+    let (initial, result, predictor) = if on_gpu {
+        let objective = krr::GpuObjective::new(gpu, problem, ks).await.map_err(|e| PipelineError::Krr(e.into()))?;
+        let objective = RefCell::new(objective);
+        let initial = objective.borrow_mut().eval_async(&init).await.map_err(|e| PipelineError::Krr(e.into()))?;
+        let evaluate = |params: krr::Params, needs_grad: bool| {
+            let objective = &objective;
+            async move { objective.borrow_mut().evaluate(&params, needs_grad).await }
+        };
+        let result = krr::tune_async(evaluate, init, &ts, report).await.map_err(PipelineError::Krr)?;
+        let predictor = objective.into_inner().predictor().clone();
+        (initial, result, Some(predictor))
+    } else {
+        let mut objective = krr::Reference { problem, settings: ks };
+        let initial = objective.eval(&init).map_err(PipelineError::Krr)?;
+        let result = krr::tune(&mut objective, init, &ts, report).map_err(PipelineError::Krr)?;
+        (initial, result, None)
+    };
     if matches!(result.stop, krr::StopReason::Cancelled) {
         return Err(PipelineError::Cancelled);
     }
     let summary = TuningSummary {
+        backend: if on_gpu { "gpu" } else { "cpu" },
         n: problem.n(),
         m,
         steps_run: result.history.len().saturating_sub(1),
@@ -363,5 +425,6 @@ fn fit_krr(
         best_data_fit: result.eval.data_fit,
         length_scales: result.params.length_scales(),
     };
-    Ok((KrrFit { beta: result.eval.beta, params: result.params, euclidean: settings.euclidean }, summary))
+    let fit = KrrFit { beta: result.eval.beta, params: result.params, euclidean: settings.euclidean, predictor };
+    Ok((fit, summary))
 }

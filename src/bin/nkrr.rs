@@ -18,6 +18,8 @@ USAGE:
         --lambda X                 ridge parameter of the KRR                [0.001]
         --no-tune | --no-theta | --no-z   the paper's ablations
         --euclidean                KRR on Fourier-encoded coordinates, not features (ablation)
+        --krr-backend auto|gpu|cpu where the KRR objective runs (auto: CPU f64 on software
+                                   adapters, GPU otherwise)                  [auto]
     nkrr bench [--sizes 3000,10000,50000] [--ms 500,1000] [--steps N] [--method nkrr|network]
                             per-stage times on a synthetic noisy torus (adapter printed)
     nkrr gpu                the GPU adapter wgpu finds here and its limits
@@ -138,6 +140,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             "--no-theta" => settings.tune_theta = false,
             "--no-z" => settings.tune_z = false,
             "--euclidean" => settings.euclidean = true,
+            "--krr-backend" => settings.krr_backend = value(a)?.parse().map_err(|e: String| usage(&e))?,
             s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
             s if input.is_none() => input = Some(s.to_string()),
             s => return Err(usage(&format!("unexpected argument '{s}'"))),
@@ -178,8 +181,8 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         .map_err(|e| fail(format!("{input}: {e}")))?;
     if let Some(t) = &rec.tuning {
         eprintln!(
-            "tuning: n {} m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e} (best at step {})",
-            t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit, t.best_step
+            "tuning ({}): n {} m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e} (best at step {})",
+            t.backend, t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit, t.best_step
         );
     }
     for n in &rec.notices {
@@ -244,6 +247,7 @@ fn bench(args: &[String]) -> Result<(), Failure> {
             "--steps" => settings.steps = parse(&value(a)?, a)?,
             "--method" => settings.method = value(a)?.parse().map_err(|e: String| usage(&e))?,
             "--resolution" => settings.resolution = parse(&value(a)?, a)?,
+            "--krr-backend" => settings.krr_backend = value(a)?.parse().map_err(|e: String| usage(&e))?,
             s => return Err(usage(&format!("unknown bench option '{s}'"))),
         }
     }

@@ -372,6 +372,7 @@ fn fixed_point_y(y: &[f32]) -> (Vec<[u32; 2]>, f64, f64) {
 /// The Nyström predictor on the GPU for feature dimension `d`: `g(q) = Σ_j β_j k(q, z_j)` at
 /// millions of queries, in chunks of at most [`PREDICT_CHUNK`] (fewer where a binding cannot hold
 /// that many).
+#[derive(Clone)]
 pub struct GpuPredictor {
     gpu: Gpu,
     d: usize,
