@@ -89,7 +89,7 @@ impl std::str::FromStr for KrrBackend {
 impl Default for Settings {
     fn default() -> Self {
         Settings {
-            method: Method::Network,
+            method: Method::Nkrr,
             resolution: 128,
             remove_small_components: None,
             max_points: 100_000,

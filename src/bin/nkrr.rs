@@ -9,7 +9,7 @@ USAGE:
     nkrr info CLOUD.ply     point count, bounds, properties found, warnings
     nkrr reconstruct CLOUD.ply -o OUT.glb [OPTIONS]
                             a watertight mesh of the cloud, as glTF binary
-        --method network|nkrr      field to mesh (network: the prior alone)  [network]
+        --method nkrr|network      field to mesh (network: the prior alone)  [nkrr]
         --resolution N             marching-cubes resolution (16..=1024)     [128]
         --remove-small F           drop components below F x the largest's triangle count
         --max-points N             subsample larger clouds for the encoder   [100000]
