@@ -1,13 +1,24 @@
-// The page: drop zone and file picker, the cloud summary, and input forwarding to the Rust
-// viewer. Parsing and drawing happen in the wasm module; this file only touches the DOM.
+// The page: drop zone and file picker, the cloud summary, the settings, the reconstruction (run
+// in web/worker.js, off this thread), its progress and result, and input forwarding to the Rust
+// viewer. Parsing, drawing and reconstructing happen in the wasm module; this file only touches
+// the DOM and passes messages.
+
+import { Reconstructor } from './reconstructor.js';
 
 const $ = (id) => document.getElementById(id);
 const fmt = new Intl.NumberFormat('en-US');
 const num = (x) => Number(x.toPrecision(5)).toString();
+const secs = (s) => (s < 10 ? s.toFixed(2) : s.toFixed(1)) + ' s';
 
 const NO_WEBGPU =
   'This browser has no WebGPU, which nkrr needs to run the reconstruction on your GPU. ' +
   'Use a current Chrome or Edge (113+), Safari 26+, or Firefox 141+ (Windows; other platforms behind a flag).';
+
+// Cancel returns the page to idle at once and tells the worker, which stops at the pipeline's
+// next step and keeps its engine. A worker that has not confirmed within this time (a long GPU
+// batch, or CPU-bound work such as nkrr's tuning, which does not see messages) is terminated
+// and replaced, and so is one still stopping when the next run starts.
+const CANCEL_GRACE_MS = 5000;
 
 function show(text, kind = '') {
   const m = $('message');
@@ -26,6 +37,11 @@ function wasmReady() {
 let nk = null;
 let viewer = null;
 let frame = 0;
+// The loaded input: its name, the File (cheap to keep: the worker reads it for each run) and the
+// URL it came from, if any.
+let input = null;
+// The last result: { name, glb: Uint8Array, stats }.
+let result = null;
 
 function requestRender() {
   if (!viewer || frame) return;
@@ -48,12 +64,14 @@ function fitCanvas() {
   requestRender();
 }
 
-async function openFile(file) {
+/** Opens a PLY; `source` is its URL when it came from one (then the page can link to it). */
+async function openFile(file, source = null) {
   if (!nk || !viewer) return;
+  if (job) cancel('');
   show(`Reading ${file.name}…`, 'busy');
-  let cloud;
+  let cloud, bytes;
   try {
-    const bytes = new Uint8Array(await file.arrayBuffer());
+    bytes = new Uint8Array(await file.arrayBuffer());
     cloud = nk.parse_ply(bytes);
   } catch (e) {
     $('cloud-info').hidden = true;
@@ -69,18 +87,288 @@ async function openFile(file) {
   const ul = $('warnings');
   ul.replaceChildren(...cloud.warnings.map((w) => Object.assign(document.createElement('li'), { textContent: w })));
   $('cloud-info').hidden = false;
-  viewer.set_cloud(cloud);
+  viewer.set_cloud(cloud); // also removes an earlier mesh
+  if (viewer.drawn_points < cloud.count) {
+    ul.append(Object.assign(document.createElement('li'), {
+      textContent: `The view shows ${fmt.format(viewer.drawn_points)} of the points (an even subsample).`,
+    }));
+  }
+  $('show-mesh').disabled = true;
   cloud.free();
+  input = { name: file.name, file, source }; // the worker reads the file itself for each run
+  updateShareLink();
+  setResult(null);
+  $('progress').hidden = true;
   show('');
   document.body.dataset.loaded = file.name;
+  updateRunButton();
   requestRender();
 }
+
+// ---- Settings ---------------------------------------------------------------------------
+
+function readOptions() {
+  const method = $('method').value;
+  const o = {
+    method,
+    resolution: Number($('resolution').value),
+    removeSmall: Number($('remove-small').value),
+  };
+  if (method === 'nkrr') {
+    o.m = Number($('m').value);
+    o.steps = Number($('steps').value);
+  }
+  return o;
+}
+
+function syncMethodFields() {
+  const nkrr = $('method').value === 'nkrr';
+  $('nkrr-fields').disabled = !nkrr;
+  $('nkrr-note').hidden = !nkrr;
+}
+
+// ---- The reconstructor (web/reconstructor.js: a worker with its own GPU device) -------
+
+const reconstructor = new Reconstructor({ graceMs: CANCEL_GRACE_MS });
+reconstructor.onstatechange = () => {
+  document.body.dataset.workers = String(reconstructor.workersStarted);
+  if (reconstructor.stopping) document.body.dataset.stopping = String(reconstructor.stopping.id);
+  else delete document.body.dataset.stopping;
+};
+
+// ---- A run -----------------------------------------------------------------------------
+
+// Shares of the overall bar per stage, by method. Meshing has no known end: its share fills as
+// field evaluations approach an estimate from the resolution (a closed surface needs ~18 per
+// finest-grid cell on its area, after a dense 33³ coarse grid).
+const SHARES = {
+  network: { features: [0, 0.15], meshing: [0.15, 0.98] },
+  nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], meshing: [0.7, 0.98] },
+};
+
+function stageText(p, opts) {
+  switch (p.stage) {
+    case 'setup': return 'Preparing the GPU…';
+    case 'features': return 'Computing features (network encoder)…';
+    case 'pairs': return 'Sampling and labelling training pairs…';
+    case 'tuning': return `Tuning: step ${p.step} of ${p.of}, loss ${p.loss.toPrecision(4)}`;
+    case 'meshing': return `Meshing at ${opts.resolution}³: ${fmt.format(p.evaluated)} field evaluations`;
+    case 'done': return 'Writing the GLB…';
+    default: return p.stage;
+  }
+}
+
+function onProgress(p) {
+  const opts = job.options;
+  const share = SHARES[opts.method][p.stage];
+  let f = job.fraction;
+  if (share) {
+    let within = 0;
+    if (p.stage === 'tuning') within = p.of ? p.step / p.of : 1;
+    if (p.stage === 'meshing') within = Math.min(1, p.evaluated / (33 ** 3 + 18 * opts.resolution ** 2));
+    f = share[0] + (share[1] - share[0]) * within;
+  } else if (p.stage === 'done') {
+    f = 0.99;
+  }
+  job.fraction = Math.max(job.fraction, f);
+  job.stage = p.stage;
+  $('progress-bar').value = job.fraction;
+  $('stage').textContent = stageText(p, opts);
+  document.body.dataset.stage = p.stage;
+}
+
+function tick() {
+  if (job) $('elapsed').textContent = secs((performance.now() - job.started) / 1000);
+}
+
+// body[data-job] is 'running' or 'idle'; body[data-outcome] says how the last run ended
+// ('done', 'cancelled', 'error'). Tests and embedding pages wait on these.
+function setJobState(state) {
+  const running = state === 'running';
+  document.body.dataset.job = running ? 'running' : 'idle';
+  if (running) delete document.body.dataset.outcome;
+  else document.body.dataset.outcome = state;
+  $('run').hidden = running;
+  $('cancel').hidden = !running;
+  for (const el of $('settings').elements) if (el.id !== 'cancel' && el.id !== 'run') el.disabled = running;
+  if (!running) syncMethodFields();
+  else $('nkrr-fields').disabled = true;
+  updateRunButton();
+}
+
+function updateRunButton() {
+  $('run').disabled = !input || !!job || document.body.dataset.state !== 'ready';
+}
+
+let job = null; // { options, started, timer, fraction, stage, abort }
+
+async function run() {
+  if (!input || job) return;
+  const options = readOptions();
+  options.name = input.name.replace(/\.ply$/i, '') || 'mesh';
+  const abort = new AbortController();
+  const me = { options, started: performance.now(), fraction: 0, stage: 'setup', timer: setInterval(tick, 100), abort };
+  job = me;
+  setResult(null);
+  viewer.clear_mesh();
+  requestRender();
+  $('progress').hidden = false;
+  $('progress-bar').value = 0;
+  $('stage').textContent = 'Preparing the GPU…';
+  tick();
+  show('');
+  delete document.body.dataset.stage;
+  setJobState('running');
+  let r;
+  try {
+    r = await reconstructor.reconstruct(input.file, options, {
+      onProgress: (p) => { if (job === me) onProgress(p); },
+      signal: abort.signal,
+    });
+  } catch (e) {
+    if (job !== me) return;
+    if (e.name === 'AbortError') finish('cancelled', me.cancelMessage ?? CANCELLED);
+    else if (e.name === 'GpuError') finish('error', `Reconstruction failed: ${e.message}. The next run gets a fresh GPU device.`);
+    else finish('error', `Reconstruction failed: ${e.message}`);
+    return;
+  }
+  if (job === me) onDone(r);
+}
+
+const CANCELLED = 'Cancelled. The cloud is still loaded; change settings or run again.';
+
+/** Stops the run (the page is idle at once); `message` is then shown. */
+function cancel(message = CANCELLED) {
+  if (!job) return;
+  job.cancelMessage = message;
+  job.abort.abort();
+}
+
+function finish(state, message) {
+  if (!job) return;
+  clearInterval(job.timer);
+  tick();
+  job = null;
+  if (state !== 'done') $('progress').hidden = true;
+  show(message ?? '', state === 'error' ? 'error' : '');
+  setJobState(state);
+}
+
+function onDone(r) {
+  const elapsed = (performance.now() - job.started) / 1000;
+  const name = job.options.name;
+  let notShown = null;
+  try {
+    viewer.set_mesh(r.positions, r.normals, r.indices);
+  } catch (e) {
+    notShown = e.message ?? String(e);
+  }
+  $('show-mesh').disabled = false;
+  applyVisibility();
+  requestRender();
+  $('progress-bar').value = 1;
+  $('stage').textContent = `Done in ${secs(elapsed)}`;
+  setResult({ name, glb: r.glb, stats: r.stats, elapsed });
+  finish('done', notShown ?? '');
+  $('result').scrollIntoView({ block: 'nearest' });
+}
+
+function setResult(r) {
+  result = r;
+  $('result').hidden = !r;
+  if (!r) return;
+  const s = r.stats;
+  $('r-vertices').textContent = fmt.format(s.vertices);
+  $('r-triangles').textContent = fmt.format(s.triangles);
+  $('r-watertight').textContent = s.watertight ? 'yes' : 'no';
+  $('r-watertight').className = s.watertight ? 'yes' : 'no';
+  $('r-time').textContent = `${secs(r.elapsed)} (${s.method}, ${s.resolution}³)`;
+  $('r-stages').textContent = s.timings.map((t) => `${t.stage} ${secs(t.seconds)}`).join(' · ');
+  $('r-evals').textContent = `${fmt.format(s.evaluations)} (dense grid: ${fmt.format(s.denseEvaluations)})`;
+  const t = s.tuning;
+  $('r-tuning-label').hidden = $('r-tuning').hidden = !t;
+  if (t) {
+    $('r-tuning').textContent =
+      `n ${fmt.format(t.n)}, m ${t.m}; ${t.stepsRun} steps (${t.stop}), best at ${t.bestStep}; ` +
+      `loss ${t.initialLoss.toPrecision(4)} → ${t.finalLoss.toPrecision(4)}`;
+  }
+  $('r-bytes').textContent = `${r.name}.glb, ${fmt.format(Math.round(s.bytes / 1024))} KiB`;
+  $('r-notices').replaceChildren(...s.notices.map((n) => Object.assign(document.createElement('li'), { textContent: n })));
+  $('download').textContent = `Download ${r.name}.glb`;
+}
+
+function download() {
+  if (!result) return;
+  const url = URL.createObjectURL(new Blob([result.glb], { type: 'model/gltf-binary' }));
+  const a = Object.assign(document.createElement('a'), { href: url, download: `${result.name}.glb` });
+  document.body.append(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(url), 10_000);
+}
+
+function applyVisibility() {
+  viewer?.set_visible($('show-cloud').checked, $('show-mesh').checked);
+  requestRender();
+}
+
+// ---- Share links: ?cloud=URL&method=…&resolution=…&m=…&steps=…&removeSmall=…&run ----------
+
+const SETTING_PARAMS = { method: 'method', resolution: 'resolution', m: 'm', steps: 'steps', removeSmall: 'remove-small' };
+
+/** Applies settings from the query, loads `cloud` from its URL, and runs when `run` is given. */
+async function openFromQuery() {
+  const q = new URLSearchParams(location.search);
+  for (const [param, id] of Object.entries(SETTING_PARAMS)) {
+    const v = q.get(param);
+    if (v === null) continue;
+    const el = $(id);
+    if (el instanceof HTMLSelectElement && ![...el.options].some((o) => o.value === v)) {
+      // A value the menu does not list (say resolution=160) is added, not dropped.
+      el.append(new Option(param === 'resolution' ? `${v}³` : v, v));
+    }
+    el.value = v;
+  }
+  syncMethodFields();
+  const url = q.get('cloud');
+  if (!url) return;
+  let file;
+  try {
+    const abs = new URL(url, location.href);
+    show(`Fetching ${abs.href}…`, 'busy');
+    const res = await fetch(abs);
+    if (!res.ok) throw new Error(`HTTP ${res.status} ${res.statusText}`);
+    const name = decodeURIComponent(abs.pathname.split('/').pop() || 'cloud.ply');
+    file = new File([await res.blob()], name);
+  } catch (e) {
+    show(`Could not fetch the cloud at ${url}: ${e.message ?? e}. ` +
+      'It must be reachable from this page (same site, or served with CORS).', 'error');
+    return;
+  }
+  await openFile(file, url);
+  if (q.has('run') && input) run();
+}
+
+/** The link that reopens this cloud with these settings (only for clouds from a URL). */
+function updateShareLink() {
+  const a = $('share');
+  if (!input?.source) { a.hidden = true; return; }
+  const q = new URLSearchParams({ cloud: input.source });
+  const o = readOptions();
+  for (const k of Object.keys(SETTING_PARAMS)) if (o[k] !== undefined) q.set(k, o[k]);
+  q.set('run', '');
+  a.href = `${location.origin}${location.pathname}?${q.toString().replace(/run=$/, 'run')}`;
+  a.hidden = false;
+}
+
+// ---- Input -----------------------------------------------------------------------------
 
 function wireInput() {
   const zone = $('drop-zone');
   $('file-input').addEventListener('change', (e) => {
     const f = e.target.files?.[0];
     if (f) openFile(f);
+    e.target.value = ''; // picking the same file again still fires
   });
   for (const t of ['dragenter', 'dragover']) {
     addEventListener(t, (e) => { e.preventDefault(); zone.classList.add('over'); });
@@ -106,9 +394,21 @@ function wireInput() {
   canvas.addEventListener('wheel', (e) => { e.preventDefault(); viewer?.zoom(e.deltaY); requestRender(); }, { passive: false });
   canvas.addEventListener('dblclick', () => { viewer?.fit(); requestRender(); });
   $('fit').addEventListener('click', () => { viewer?.fit(); requestRender(); });
-  addEventListener('keydown', (e) => { if (e.key === 'f' || e.key === 'F') { viewer?.fit(); requestRender(); } });
+  addEventListener('keydown', (e) => {
+    if (e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement) return;
+    if (e.key === 'f' || e.key === 'F') { viewer?.fit(); requestRender(); }
+  });
   $('point-size').addEventListener('input', (e) => { viewer?.set_point_size(Number(e.target.value) * (window.devicePixelRatio || 1)); requestRender(); });
+  $('show-cloud').addEventListener('change', applyVisibility);
+  $('show-mesh').addEventListener('change', applyVisibility);
   new ResizeObserver(fitCanvas).observe(canvas);
+
+  $('method').addEventListener('change', syncMethodFields);
+  $('settings').addEventListener('change', updateShareLink);
+  $('settings').addEventListener('submit', (e) => { e.preventDefault(); run(); });
+  $('cancel').addEventListener('click', () => cancel());
+  $('download').addEventListener('click', download);
+  syncMethodFields();
 }
 
 async function boot() {
@@ -126,8 +426,17 @@ async function boot() {
   }
   fitCanvas();
   document.body.dataset.state = 'ready';
+  document.body.dataset.job = 'idle';
+  updateRunButton();
+  // The worker loads the module and prepares its engine while the user picks a file.
+  reconstructor.prepare().then(
+    () => { document.body.dataset.worker = 'ready'; },
+    (e) => { document.body.dataset.worker = 'error'; console.warn(`the reconstruction worker is not ready: ${e.message}`); },
+  );
   // Exposed for tests and for embedding pages that want the view.
   window.nkrrViewer = viewer;
+  window.nkrrReconstructor = reconstructor;
+  openFromQuery();
 }
 
 boot();

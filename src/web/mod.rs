@@ -1,9 +1,11 @@
-//! The browser entry points (wasm32 only): PLY parsing and the 3D viewer, exposed to the page's
-//! JavaScript through wasm-bindgen. The DOM (drop zone, panels, events) stays in `web/app.js`;
-//! Rust owns the data and the GPU.
+//! The browser entry points (wasm32 only): PLY parsing, the 3D viewer and the reconstruction
+//! (`api`, run in a Web Worker by `web/worker.js`), exposed to JavaScript through wasm-bindgen.
+//! The DOM (drop zone, panels, events) stays in `web/app.js`; Rust owns the data and the GPU.
 
+mod api;
 mod viewer;
 
+pub use api::{prepare_engine, reconstruct, simulate_device_loss};
 pub use viewer::Viewer;
 
 use wasm_bindgen::prelude::*;

@@ -1,6 +1,7 @@
-//! The 3D view: a wgpu surface on the page's canvas, an orbit camera, and the cloud drawn as
-//! instanced point sprites. Rendering is on demand (the page calls `render` after input), so an
-//! idle page costs nothing.
+//! The 3D view: a wgpu surface on the page's canvas, an orbit camera, the cloud drawn as
+//! instanced point sprites and the reconstructed mesh as lit, indexed triangles; either or both
+//! can be shown. Rendering is on demand (the page calls `render` after input), so an idle page
+//! costs nothing.
 
 use glam::{Mat4, Vec3};
 use wasm_bindgen::prelude::*;
@@ -10,6 +11,11 @@ use super::Cloud;
 use crate::gpu::Gpu;
 
 const SHADER: &str = include_str!("../../shaders/points.wgsl");
+const MESH_SHADER: &str = include_str!("../../shaders/mesh.wgsl");
+const MESH_COLOR: [f32; 4] = [0.78, 0.80, 0.83, 1.0];
+/// By default, larger clouds are drawn as an even subsample (every k-th point); the
+/// reconstruction still reads the whole file.
+const POINT_BUDGET: usize = 4_000_000;
 const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const BACKGROUND: wgpu::Color = wgpu::Color { r: 0.07, g: 0.08, b: 0.10, a: 1.0 };
 
@@ -23,6 +29,15 @@ struct ViewUniform {
     height_lo: f32,
     height_hi: f32,
     _pad: [f32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct MeshUniform {
+    view_proj: [[f32; 4]; 4],
+    eye: [f32; 4],
+    light: [f32; 4],
+    base: [f32; 4],
 }
 
 /// Orbit camera around a target: yaw/pitch in radians, distance along the view direction.
@@ -56,6 +71,15 @@ impl Orbit {
     }
 }
 
+struct MeshDraw {
+    positions: wgpu::Buffer,
+    normals: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    index_count: u32,
+    center: Vec3,
+    radius: f32,
+}
+
 struct CloudDraw {
     positions: wgpu::Buffer,
     colors: wgpu::Buffer,
@@ -79,6 +103,14 @@ pub struct Viewer {
     orbit: Orbit,
     cloud: Option<CloudDraw>,
     point_size: f32,
+    mesh_pipeline: wgpu::RenderPipeline,
+    mesh_uniform: wgpu::Buffer,
+    mesh_bind_group: wgpu::BindGroup,
+    mesh: Option<MeshDraw>,
+    show_cloud: bool,
+    show_mesh: bool,
+    drawn_points: usize,
+    point_budget: usize,
 }
 
 #[wasm_bindgen]
@@ -112,6 +144,11 @@ impl Viewer {
             color_space: Default::default(),
         };
         surface.configure(&gpu.device, &config);
+        // wgpu's default handler panics, which would end the page's module for good: log instead
+        // (the operations that can fail check their sizes first).
+        gpu.device.on_uncaptured_error(std::sync::Arc::new(|e: wgpu::Error| {
+            web_sys::console::error_1(&format!("nkrr viewer: GPU error: {e}").into());
+        }));
 
         let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("points"),
@@ -166,6 +203,7 @@ impl Viewer {
             layout: &pipeline.get_bind_group_layout(0),
             entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
         });
+        let (mesh_pipeline, mesh_uniform, mesh_bind_group) = mesh_pipeline(&gpu.device, format);
         let depth = depth_view(&gpu.device, width, height);
         Ok(Viewer {
             gpu,
@@ -178,6 +216,14 @@ impl Viewer {
             orbit: Orbit { target: Vec3::ZERO, yaw: 0.6, pitch: 0.35, distance: 3.0, radius: 1.0 },
             cloud: None,
             point_size: 2.5,
+            mesh_pipeline,
+            mesh_uniform,
+            mesh_bind_group,
+            mesh: None,
+            show_cloud: true,
+            show_mesh: true,
+            drawn_points: 0,
+            point_budget: POINT_BUDGET,
         })
     }
 
@@ -187,21 +233,26 @@ impl Viewer {
         self.gpu.describe()
     }
 
-    /// Shows `cloud` and frames it.
+    /// Shows `cloud` and frames it; a mesh of an earlier cloud is removed.
     pub fn set_cloud(&mut self, cloud: &Cloud) {
+        self.mesh = None;
         let pc = &cloud.parsed.cloud;
         let Some(b) = pc.bounds() else {
             self.cloud = None;
+            self.drawn_points = 0;
             return;
         };
+        let max = (self.gpu.limits.max_buffer_size / 12).max(1) as usize;
+        let stride = pc.len().div_ceil(pc.len().min(self.point_budget).min(max).max(1));
+        let drawn: Vec<[f32; 3]> = pc.positions.iter().step_by(stride).copied().collect();
         let colors: Vec<[u8; 4]> = match &pc.colors {
-            Some(c) => c.clone(),
-            None => vec![[0, 0, 0, 255]; pc.len()],
+            Some(c) => c.iter().step_by(stride).copied().collect(),
+            None => vec![[0, 0, 0, 255]; drawn.len()],
         };
         let device = &self.gpu.device;
         let positions = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("cloud positions"),
-            contents: bytemuck::cast_slice(&pc.positions),
+            contents: bytemuck::cast_slice(&drawn),
             usage: wgpu::BufferUsages::VERTEX,
         });
         let colors = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -214,20 +265,128 @@ impl Viewer {
         self.cloud = Some(CloudDraw {
             positions,
             colors,
-            count: pc.len() as u32,
+            count: drawn.len() as u32,
             has_color: pc.colors.is_some(),
             center,
             radius,
             height: (b.min[1], b.max[1]),
         });
+        self.drawn_points = drawn.len();
         self.fit();
     }
 
-    /// Frames the current content.
-    pub fn fit(&mut self) {
-        if let Some(c) = &self.cloud {
-            self.orbit.fit(c.center, c.radius);
+    /// Sets how many points at most are drawn (from the next `set_cloud`; default 4M). A slow
+    /// GPU draws large clouds more smoothly with a smaller budget.
+    pub fn set_point_budget(&mut self, points: usize) {
+        self.point_budget = points.max(1);
+    }
+
+    /// How many of the cloud's points are drawn (fewer than it has when it is very large).
+    #[wasm_bindgen(getter)]
+    pub fn drawn_points(&self) -> usize {
+        self.drawn_points
+    }
+
+    /// Shows a triangle mesh: `positions` and `normals` hold x, y, z per vertex, `indices`
+    /// three vertex indices per triangle (counter-clockwise seen from outside). Replaces an
+    /// earlier mesh; the camera stays where it is unless nothing was shown before. Fails on
+    /// inconsistent lengths or an index out of range.
+    pub fn set_mesh(&mut self, positions: &[f32], normals: &[f32], indices: &[u32]) -> Result<(), JsError> {
+        let n = positions.len() / 3;
+        if positions.len() % 3 != 0 || normals.len() != positions.len() {
+            return Err(JsError::new(&format!(
+                "set_mesh: {} position and {} normal floats (both must be 3 per vertex)",
+                positions.len(),
+                normals.len()
+            )));
         }
+        if indices.len() % 3 != 0 {
+            return Err(JsError::new(&format!("set_mesh: {} indices is not a multiple of 3", indices.len())));
+        }
+        if let Some(&i) = indices.iter().find(|&&i| i as usize >= n) {
+            return Err(JsError::new(&format!("set_mesh: index {i} is out of range ({n} vertices)")));
+        }
+        if n == 0 || indices.is_empty() {
+            self.mesh = None;
+            return Ok(());
+        }
+        let max = self.gpu.limits.max_buffer_size;
+        if (positions.len() as u64) * 4 > max || (indices.len() as u64) * 4 > max {
+            return Err(JsError::new(&format!(
+                "the mesh ({n} vertices, {} triangles) is too large to show on this GPU (buffers up to {} MiB); \
+                 download it instead",
+                indices.len() / 3,
+                max >> 20
+            )));
+        }
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for p in positions.chunks_exact(3) {
+            let p = Vec3::new(p[0], p[1], p[2]);
+            if p.is_finite() {
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+        }
+        if !lo.is_finite() {
+            return Err(JsError::new("set_mesh: no finite vertex position"));
+        }
+        let device = &self.gpu.device;
+        let buffer = |label: &str, contents: &[u8], usage| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
+        };
+        let had_content = self.cloud.is_some() || self.mesh.is_some();
+        self.mesh = Some(MeshDraw {
+            positions: buffer("mesh positions", bytemuck::cast_slice(positions), wgpu::BufferUsages::VERTEX),
+            normals: buffer("mesh normals", bytemuck::cast_slice(normals), wgpu::BufferUsages::VERTEX),
+            indices: buffer("mesh indices", bytemuck::cast_slice(indices), wgpu::BufferUsages::INDEX),
+            index_count: indices.len() as u32,
+            center: (lo + hi) * 0.5,
+            radius: 0.5 * (hi - lo).length(),
+        });
+        if !had_content {
+            self.fit();
+        }
+        Ok(())
+    }
+
+    /// Removes the mesh.
+    pub fn clear_mesh(&mut self) {
+        self.mesh = None;
+    }
+
+    /// Whether a mesh is loaded.
+    #[wasm_bindgen(getter)]
+    pub fn has_mesh(&self) -> bool {
+        self.mesh.is_some()
+    }
+
+    /// Chooses what is drawn: the cloud, the mesh, or both.
+    pub fn set_visible(&mut self, cloud: bool, mesh: bool) {
+        self.show_cloud = cloud;
+        self.show_mesh = mesh;
+    }
+
+    /// Frames the current content (the cloud and the mesh together).
+    pub fn fit(&mut self) {
+        let spheres = [
+            self.cloud.as_ref().map(|c| (c.center, c.radius)),
+            self.mesh.as_ref().map(|m| (m.center, m.radius)),
+        ];
+        let mut it = spheres.into_iter().flatten();
+        let Some(first) = it.next() else { return };
+        let (center, radius) = it.fold(first, |(c0, r0), (c1, r1)| {
+            // The smallest sphere holding both.
+            let d = (c1 - c0).length();
+            if d + r1 <= r0 {
+                (c0, r0)
+            } else if d + r0 <= r1 {
+                (c1, r1)
+            } else {
+                let r = 0.5 * (d + r0 + r1);
+                (c0 + (c1 - c0) * ((r - r0) / d), r)
+            }
+        });
+        self.orbit.fit(center, radius);
     }
 
     /// Rotates by a drag of (dx, dy) pixels.
@@ -349,6 +508,18 @@ impl Viewer {
             _pad: [0.0; 2],
         };
         self.gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&u));
+        let eye = self.orbit.eye();
+        let forward = (self.orbit.target - eye).normalize_or_zero();
+        let right = forward.cross(Vec3::Y).normalize_or_zero();
+        let up = right.cross(forward);
+        let light = (-forward + 0.6 * up - 0.45 * right).normalize_or_zero();
+        let mu = MeshUniform {
+            view_proj: u.view_proj,
+            eye: eye.extend(1.0).to_array(),
+            light: light.extend(0.0).to_array(),
+            base: MESH_COLOR,
+        };
+        self.gpu.queue.write_buffer(&self.mesh_uniform, 0, bytemuck::bytes_of(&mu));
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
         {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -368,7 +539,15 @@ impl Viewer {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            if let Some(c) = &self.cloud {
+            if let (Some(m), true) = (&self.mesh, self.show_mesh) {
+                pass.set_pipeline(&self.mesh_pipeline);
+                pass.set_bind_group(0, &self.mesh_bind_group, &[]);
+                pass.set_vertex_buffer(0, m.positions.slice(..));
+                pass.set_vertex_buffer(1, m.normals.slice(..));
+                pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..m.index_count, 0, 0..1);
+            }
+            if let (Some(c), true) = (&self.cloud, self.show_cloud) {
                 pass.set_pipeline(&self.pipeline);
                 pass.set_bind_group(0, &self.bind_group, &[]);
                 pass.set_vertex_buffer(0, c.positions.slice(..));
@@ -378,6 +557,69 @@ impl Viewer {
         }
         self.gpu.queue.submit([encoder.finish()]);
     }
+}
+
+/// The mesh's render pipeline, its uniform buffer and bind group.
+fn mesh_pipeline(
+    device: &wgpu::Device,
+    format: wgpu::TextureFormat,
+) -> (wgpu::RenderPipeline, wgpu::Buffer, wgpu::BindGroup) {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("mesh"),
+        source: wgpu::ShaderSource::Wgsl(MESH_SHADER.into()),
+    });
+    let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("mesh"),
+        layout: None,
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some("vs"),
+            compilation_options: Default::default(),
+            buffers: &[
+                Some(wgpu::VertexBufferLayout {
+                    array_stride: 12,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+                }),
+                Some(wgpu::VertexBufferLayout {
+                    array_stride: 12,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![1 => Float32x3],
+                }),
+            ],
+        },
+        fragment: Some(wgpu::FragmentState {
+            module: &module,
+            entry_point: Some("fs"),
+            compilation_options: Default::default(),
+            targets: &[Some(format.into())],
+        }),
+        // Both sides: back faces are shaded differently, not culled, so holes show.
+        primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, ..Default::default() },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Less),
+            stencil: Default::default(),
+            // Pushed back a little so points lying on the surface stay visible in "both".
+            bias: wgpu::DepthBiasState { constant: 2, slope_scale: 1.0, clamp: 0.0 },
+        }),
+        multisample: Default::default(),
+        multiview_mask: None,
+        cache: None,
+    });
+    let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("mesh view"),
+        size: std::mem::size_of::<MeshUniform>() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("mesh view"),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
+    });
+    (pipeline, uniform, bind_group)
 }
 
 fn depth_view(device: &wgpu::Device, width: u32, height: u32) -> wgpu::TextureView {

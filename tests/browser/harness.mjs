@@ -16,15 +16,16 @@ const TYPES = {
   '.css': 'text/css', '.ply': 'application/octet-stream', '.glb': 'model/gltf-binary', '.json': 'application/json',
 };
 
-/** Serves `dir` on 127.0.0.1 (a free port); extra routes map URL paths to files. */
-export async function serve(dir, extra = {}) {
+/** Serves `dir` on 127.0.0.1 (a free port); extra routes map URL paths to files; `headers` are
+ *  added to every response (e.g. COOP/COEP for cross-origin isolation). */
+export async function serve(dir, extra = {}, headers = {}) {
   const server = http.createServer((req, res) => {
     const url = decodeURIComponent(new URL(req.url, 'http://x').pathname);
     let file = extra[url] ?? path.join(dir, url === '/' ? 'index.html' : url);
     if (!file.startsWith(dir) && !Object.values(extra).includes(file)) { res.writeHead(403).end(); return; }
     fs.readFile(file, (err, data) => {
       if (err) { res.writeHead(404).end('not found'); return; }
-      res.writeHead(200, { 'content-type': TYPES[path.extname(file)] ?? 'application/octet-stream' });
+      res.writeHead(200, { ...headers, 'content-type': TYPES[path.extname(file)] ?? 'application/octet-stream' });
       res.end(data);
     });
   });

@@ -1,0 +1,47 @@
+// The reconstructed mesh: indexed triangles with vertex normals, lit by a key light that follows
+// the camera (above and to the left of it) plus a dim fill and a little specular. Faces seen
+// from behind are drawn in a darker, warmer tone so a hole or an inside-out patch is visible.
+
+struct MeshView {
+    view_proj: mat4x4<f32>,
+    eye: vec4<f32>,
+    // xyz: direction towards the key light (world space).
+    light: vec4<f32>,
+    base: vec4<f32>,
+}
+
+@group(0) @binding(0) var<uniform> view: MeshView;
+
+struct VOut {
+    @builtin(position) pos: vec4<f32>,
+    @location(0) world: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+}
+
+@vertex
+fn vs(@location(0) p: vec3<f32>, @location(1) n: vec3<f32>) -> VOut {
+    var out: VOut;
+    out.pos = view.view_proj * vec4<f32>(p, 1.0);
+    out.world = p;
+    out.normal = n;
+    return out;
+}
+
+@fragment
+fn fs(in: VOut) -> @location(0) vec4<f32> {
+    let v = normalize(view.eye.xyz - in.world);
+    var n = in.normal;
+    let len = length(n);
+    n = select(v, n / len, len > 1e-20);
+    // Shade the side that faces the camera; remember whether it was the back.
+    let back = dot(n, v) < 0.0;
+    n = select(n, -n, back);
+    let l = normalize(view.light.xyz);
+    let key = max(dot(n, l), 0.0);
+    let fill = 0.5 + 0.5 * n.y;
+    let h = normalize(l + v);
+    let spec = pow(max(dot(n, h), 0.0), 48.0) * 0.25;
+    let base = select(view.base.rgb, vec3<f32>(0.62, 0.36, 0.30), back);
+    let c = base * (0.18 + 0.72 * key + 0.15 * fill) + vec3<f32>(spec);
+    return vec4<f32>(c, 1.0);
+}

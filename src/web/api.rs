@@ -1,0 +1,292 @@
+//! The reconstruction as a JavaScript API, meant to run in a Web Worker (`web/worker.js`) so
+//! the page stays responsive: PLY bytes and a plain options object in, a GLB, the mesh's arrays
+//! (for the viewer) and a stats object out. One [`Engine`] (device + uploaded network weights)
+//! is kept per thread and reused by later calls; it is dropped when its device is lost, and the
+//! next call makes a new one.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+use std::sync::Arc;
+
+use js_sys::{Array, Float32Array, Function, Object, Reflect, Uint32Array, Uint8Array};
+use wasm_bindgen::prelude::*;
+
+use crate::gpu::Gpu;
+use crate::io::{gltf, ply};
+use crate::pipeline::{now, Engine, Method, PipelineError, Settings, Stage};
+
+thread_local! {
+    static ENGINE: RefCell<Option<Rc<Engine>>> = const { RefCell::new(None) };
+    /// Set by the device-lost callback and the uncaptured-error handler; read (and cleared) by
+    /// the next call, which reports it.
+    static GPU_TROUBLE: RefCell<Option<String>> = const { RefCell::new(None) };
+}
+
+fn note_trouble(msg: String) {
+    GPU_TROUBLE.with(|t| {
+        let mut t = t.borrow_mut();
+        if t.is_none() {
+            *t = Some(msg);
+        }
+    });
+}
+
+fn take_trouble() -> Option<String> {
+    GPU_TROUBLE.with(|t| t.borrow_mut().take())
+}
+
+/// The engine of this thread, made on first use (a GPU device and the network weights).
+async fn engine() -> Result<Rc<Engine>, JsValue> {
+    if let Some(e) = ENGINE.with(|c| c.borrow().clone()) {
+        return Ok(e);
+    }
+    let gpu = Gpu::new().await.map_err(|e| error("GpuError", &e.to_string()))?;
+    // Without a handler wgpu panics on an uncaptured error, which would poison the module for
+    // good; record it instead, and fail the reconstruction that caused it.
+    gpu.device.on_uncaptured_error(Arc::new(|e: wgpu::Error| {
+        web_sys::console::error_1(&format!("nkrr: GPU error: {e}").into());
+        note_trouble(format!("the GPU reported an error: {e}"));
+    }));
+    gpu.device.set_device_lost_callback(|reason, msg| {
+        // A deliberate destroy (the worker ending) is not news.
+        if reason != wgpu::DeviceLostReason::Destroyed {
+            note_trouble(format!("the GPU device was lost ({reason:?}): {msg}"));
+        }
+        ENGINE.with(|c| c.borrow_mut().take());
+    });
+    let engine = Rc::new(Engine::new(gpu).await.map_err(pipeline_error)?);
+    ENGINE.with(|c| *c.borrow_mut() = Some(engine.clone()));
+    Ok(engine)
+}
+
+/// Prepares the engine (device, weights, shaders) ahead of the first reconstruction and
+/// resolves to a one-line description of the GPU adapter.
+#[wasm_bindgen(js_name = prepareEngine)]
+pub async fn prepare_engine() -> Result<String, JsValue> {
+    let _ = take_trouble();
+    Ok(engine().await?.gpu.describe())
+}
+
+/// Test hook: destroys this thread's GPU device as a driver reset would lose it. A run in
+/// progress fails with a `GpuError`; the next call makes a new engine. Returns false when there
+/// was no engine.
+#[wasm_bindgen(js_name = simulateDeviceLoss)]
+pub fn simulate_device_loss() -> bool {
+    let Some(engine) = ENGINE.with(|c| c.borrow_mut().take()) else { return false };
+    note_trouble("the GPU device was lost (simulated)".into());
+    engine.gpu.device.destroy();
+    true
+}
+
+/// Reconstructs a surface from PLY bytes.
+///
+/// `options` is a plain object, every field optional (defaults are the paper's):
+/// `method` ("network" | "nkrr"), `m`, `steps`, `resolution`, `removeSmall` (fraction of the
+/// largest component below which components are dropped; 0 or null keeps all), `maxPoints`,
+/// `lambda`, `name` (the glTF node's name).
+///
+/// `on_progress(p)` is called at each stage with `{ stage: "features" | "pairs" | "tuning" |
+/// "meshing" | "done", step?, of?, loss?, evaluated? }`; returning `false` cancels, and the
+/// promise then rejects with an `Error` whose `name` is `"AbortError"`.
+///
+/// Resolves to `{ glb: Uint8Array, positions: Float32Array, normals: Float32Array,
+/// indices: Uint32Array, stats }` (see `stats_object` for the fields of `stats`).
+#[wasm_bindgen]
+pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Function) -> Result<JsValue, JsValue> {
+    let t0 = now();
+    let opts = Options::from_js(&options)?;
+    let parsed = ply::read_ply(&ply_bytes).map_err(|e| error("PlyError", &e.to_string()))?;
+    drop(ply_bytes);
+    let _ = take_trouble();
+    let engine = engine().await?;
+    let t_ready = now();
+
+    let mut report = |s: &Stage| -> bool {
+        let p = Object::new();
+        let (stage, fields): (&str, Vec<(&str, f64)>) = match s {
+            Stage::Features => ("features", vec![]),
+            Stage::Pairs => ("pairs", vec![]),
+            Stage::Tuning { step, of, loss } => ("tuning", vec![("step", *step as f64), ("of", *of as f64), ("loss", *loss)]),
+            Stage::Meshing { evaluated } => ("meshing", vec![("evaluated", *evaluated as f64)]),
+            Stage::Done => ("done", vec![]),
+        };
+        set(&p, "stage", stage);
+        for (k, v) in fields {
+            set(&p, k, v);
+        }
+        match on_progress.call1(&JsValue::NULL, &p) {
+            // Only an explicit `false` cancels; a callback that returns nothing continues.
+            Ok(v) => v.as_bool() != Some(false),
+            Err(e) => {
+                web_sys::console::error_2(&"nkrr: the progress callback threw".into(), &e);
+                true
+            }
+        }
+    };
+    let result = engine.reconstruct(&parsed.cloud, &opts.settings, &mut report).await;
+    if let Some(trouble) = take_trouble() {
+        return Err(error("GpuError", &trouble));
+    }
+    let rec = result.map_err(pipeline_error)?;
+
+    let t = now();
+    let mut mesh = rec.mesh;
+    if mesh.normals.len() != mesh.positions.len() {
+        mesh.compute_vertex_normals();
+    }
+    let watertight = mesh.is_watertight();
+    let (glb, report) = gltf::write_glb_with_report(&mesh, &gltf::GlbOptions { name: opts.name.clone(), ..Default::default() })
+        .map_err(|e| error("GltfError", &format!("the mesh could not be written as glTF: {e}")))?;
+    let t_glb = now() - t;
+
+    let stats = Object::new();
+    set(&stats, "points", parsed.cloud.len() as f64);
+    set(&stats, "method", if opts.settings.method == Method::Nkrr { "nkrr" } else { "network" });
+    set(&stats, "resolution", opts.settings.resolution as f64);
+    set(&stats, "vertices", report.vertices_written as f64);
+    set(&stats, "triangles", report.triangles_written as f64);
+    set(&stats, "watertight", watertight);
+    set(&stats, "bytes", report.bytes as f64);
+    set(&stats, "evaluations", rec.extract.refine.evaluations as f64);
+    set(&stats, "denseEvaluations", rec.extract.refine.dense_evaluations as f64);
+    set(&stats, "components", rec.extract.removal.components as f64);
+    set(&stats, "componentsRemoved", rec.extract.removal.components_removed as f64);
+    let timings = Array::new();
+    let mut stage_timings: Vec<(&str, f64)> = vec![("setup", t_ready - t0)];
+    stage_timings.extend(rec.timings.iter().copied());
+    stage_timings.push(("glb", t_glb));
+    for (stage, seconds) in stage_timings {
+        let o = Object::new();
+        set(&o, "stage", stage);
+        set(&o, "seconds", seconds);
+        timings.push(&o);
+    }
+    set(&stats, "timings", timings);
+    set(&stats, "seconds", now() - t0);
+    let notices: Array = rec.notices.iter().map(|n| JsValue::from_str(n)).collect();
+    for w in parsed.warnings() {
+        notices.push(&JsValue::from_str(&w));
+    }
+    if report.degenerate_triangles_dropped > 0 {
+        notices.push(&JsValue::from_str(&format!(
+            "{} degenerate triangles were left out of the GLB",
+            report.degenerate_triangles_dropped
+        )));
+    }
+    set(&stats, "notices", notices);
+    let tuning: JsValue = match &rec.tuning {
+        None => JsValue::NULL,
+        Some(t) => {
+            let o = Object::new();
+            set(&o, "n", t.n as f64);
+            set(&o, "m", t.m as f64);
+            set(&o, "stepsRun", t.steps_run as f64);
+            set(&o, "bestStep", t.best_step as f64);
+            set(&o, "stop", t.stop.as_str());
+            set(&o, "initialLoss", t.initial_loss);
+            set(&o, "finalLoss", t.final_loss);
+            set(&o, "initialDataFit", t.initial_data_fit);
+            set(&o, "bestDataFit", t.best_data_fit);
+            o.into()
+        }
+    };
+    set(&stats, "tuning", tuning);
+    set(&stats, "adapter", engine.gpu.describe());
+
+    let out = Object::new();
+    set(&out, "glb", Uint8Array::from(glb.as_slice()));
+    set(&out, "positions", Float32Array::from(bytemuck::cast_slice::<[f32; 3], f32>(&mesh.positions)));
+    set(&out, "normals", Float32Array::from(bytemuck::cast_slice::<[f32; 3], f32>(&mesh.normals)));
+    set(&out, "indices", Uint32Array::from(mesh.indices.as_slice()));
+    set(&out, "stats", stats);
+    Ok(out.into())
+}
+
+/// The settings a page may give, checked.
+struct Options {
+    settings: Settings,
+    name: Option<String>,
+}
+
+impl Options {
+    fn from_js(o: &JsValue) -> Result<Options, JsValue> {
+        let mut settings = Settings::default();
+        let mut name = None;
+        if o.is_undefined() || o.is_null() {
+            return Ok(Options { settings, name });
+        }
+        if !o.is_object() {
+            return Err(error("TypeError", "options must be an object"));
+        }
+        if let Some(v) = field(o, "method")? {
+            let s = v.as_string().ok_or_else(|| error("RangeError", "method must be \"network\" or \"nkrr\""))?;
+            settings.method = s.parse().map_err(|e: String| error("RangeError", &e))?;
+        }
+        if let Some(m) = integer(o, "m", 1.0, 5000.0)? {
+            settings.m = m as usize;
+        }
+        if let Some(s) = integer(o, "steps", 0.0, 1000.0)? {
+            settings.steps = s as usize;
+        }
+        if let Some(r) = integer(o, "resolution", 16.0, crate::mesh::refine::MAX_RESOLUTION as f64)? {
+            settings.resolution = r as u32;
+        }
+        if let Some(p) = integer(o, "maxPoints", 1.0, 10_000_000.0)? {
+            settings.max_points = p as usize;
+        }
+        if let Some(f) = number(o, "removeSmall", 0.0, 1.0)? {
+            settings.remove_small_components = (f > 0.0).then_some(f as f32);
+        }
+        if let Some(l) = number(o, "lambda", f64::MIN_POSITIVE, 1e6)? {
+            settings.lambda = l;
+        }
+        if let Some(v) = field(o, "name")? {
+            name = Some(v.as_string().ok_or_else(|| error("TypeError", "name must be a string"))?);
+        }
+        Ok(Options { settings, name })
+    }
+}
+
+/// `o[key]`, or None when it is undefined or null.
+fn field(o: &JsValue, key: &str) -> Result<Option<JsValue>, JsValue> {
+    let v = Reflect::get(o, &JsValue::from_str(key))?;
+    Ok((!v.is_undefined() && !v.is_null()).then_some(v))
+}
+
+fn number(o: &JsValue, key: &str, lo: f64, hi: f64) -> Result<Option<f64>, JsValue> {
+    let Some(v) = field(o, key)? else { return Ok(None) };
+    // Form fields arrive as strings; accept numeric strings too.
+    let x = v.as_f64().or_else(|| v.as_string().and_then(|s| s.trim().parse().ok()));
+    match x {
+        Some(x) if x.is_finite() && (lo..=hi).contains(&x) => Ok(Some(x)),
+        _ => Err(error("RangeError", &format!("{key} must be a number between {lo} and {hi}"))),
+    }
+}
+
+fn integer(o: &JsValue, key: &str, lo: f64, hi: f64) -> Result<Option<f64>, JsValue> {
+    match number(o, key, lo, hi) {
+        Ok(Some(x)) if x.fract() != 0.0 => Err(error("RangeError", &format!("{key} must be a whole number"))),
+        Err(_) => Err(error("RangeError", &format!("{key} must be a whole number between {lo} and {hi}"))),
+        r => r,
+    }
+}
+
+fn set(o: &Object, key: &str, value: impl Into<JsValue>) {
+    let _ = Reflect::set(o, &JsValue::from_str(key), &value.into());
+}
+
+/// A JS `Error` with `name` set, so callers can tell a cancel ("AbortError") from a failure.
+fn error(name: &str, message: &str) -> JsValue {
+    let e = js_sys::Error::new(message);
+    e.set_name(name);
+    e.into()
+}
+
+fn pipeline_error(e: PipelineError) -> JsValue {
+    match e {
+        PipelineError::Cancelled => error("AbortError", "cancelled"),
+        PipelineError::Gpu(_) => error("GpuError", &e.to_string()),
+        PipelineError::Cloud(_) => error("CloudError", &e.to_string()),
+        _ => error("Error", &e.to_string()),
+    }
+}

@@ -1,0 +1,81 @@
+// The reconstruction, off the page's main thread: this module worker loads its own instance of
+// the wasm module, makes a WebGPU device here (one engine, kept for later runs) and answers the
+// page's messages.
+//
+//   page → worker  { type: 'prepare' }
+//                  { type: 'run', id, bytes: ArrayBuffer | Blob, options, cancelFlag?: Int32Array }
+//                  { type: 'cancel', id }
+//                  { type: 'simulate-device-loss' }       (tests: destroys the GPU device)
+//   worker → page  { type: 'ready', adapter }           the engine is up (answer to 'prepare')
+//                  { type: 'progress', id, stage, … }   see `reconstruct` in src/web/api.rs
+//                  { type: 'done', id, result }          glb, positions, normals, indices, stats
+//                  { type: 'cancelled', id }
+//                  { type: 'error', id?, name, message }
+//
+// Cancelling: 'cancel' sets a flag that the progress callback reads, so the pipeline stops at its
+// next step. Messages only arrive while the pipeline awaits the GPU; a step that computes on the
+// CPU for long (nkrr's tuning, for now) does not see them. `cancelFlag`, a SharedArrayBuffer view
+// the page can send when it is cross-origin isolated, is read synchronously and has no such gap;
+// without one, the page terminates this worker when a cancel is not answered in time.
+
+// The wasm-bindgen module sits next to web/, wherever the site is mounted.
+import init, { prepareEngine, reconstruct, simulateDeviceLoss } from '../nkrr.js';
+
+const ready = init();
+const cancelled = new Set();
+
+function fail(id, e) {
+  postMessage({ type: 'error', id, name: e?.name ?? 'Error', message: e?.message ?? String(e) });
+}
+
+async function run({ id, bytes, options, cancelFlag }) {
+  await ready;
+  const stopped = () => cancelled.has(id) || (cancelFlag ? Atomics.load(cancelFlag, 0) !== 0 : false);
+  if (stopped()) { postMessage({ type: 'cancelled', id }); return; }
+  const onProgress = (p) => {
+    const go = !stopped();
+    if (go) postMessage({ type: 'progress', id, ...p });
+    return go;
+  };
+  try {
+    const data = new Uint8Array(bytes instanceof Blob ? await bytes.arrayBuffer() : bytes);
+    if (stopped()) { postMessage({ type: 'cancelled', id }); return; }
+    const r = await reconstruct(data, options ?? {}, onProgress);
+    const transfer = [r.glb.buffer, r.positions.buffer, r.normals.buffer, r.indices.buffer];
+    postMessage({ type: 'done', id, result: r }, transfer);
+  } catch (e) {
+    if (e?.name === 'AbortError') postMessage({ type: 'cancelled', id });
+    else fail(id, e);
+  } finally {
+    cancelled.delete(id);
+  }
+}
+
+// Runs one at a time, in order: a second 'run' waits for the first.
+let queue = Promise.resolve();
+
+onmessage = ({ data }) => {
+  switch (data?.type) {
+    case 'prepare':
+      queue = queue.then(async () => {
+        try {
+          await ready;
+          postMessage({ type: 'ready', adapter: await prepareEngine() });
+        } catch (e) {
+          fail(undefined, e);
+        }
+      });
+      break;
+    case 'run':
+      queue = queue.then(() => run(data));
+      break;
+    case 'cancel':
+      cancelled.add(data.id);
+      break;
+    case 'simulate-device-loss': // test hook: as if the driver had reset
+      ready.then(() => simulateDeviceLoss());
+      break;
+    default:
+      fail(undefined, new Error(`unknown message ${JSON.stringify(data?.type)}`));
+  }
+};
