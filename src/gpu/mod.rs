@@ -196,26 +196,43 @@ impl Gpu {
 
     /// A compute pipeline from WGSL source, with its bind group layout inferred.
     pub fn compute_pipeline(&self, label: &str, source: &str, entry: &str) -> wgpu::ComputePipeline {
+        self.compute_pipelines(label, source, &[entry]).remove(0)
+    }
+
+    /// Pipelines for several entry points of one WGSL module, compiled once (layouts inferred
+    /// per entry point).
+    pub fn compute_pipelines(&self, label: &str, source: &str, entries: &[&str]) -> Vec<wgpu::ComputePipeline> {
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(label),
             source: wgpu::ShaderSource::Wgsl(source.into()),
         });
-        self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(label),
-            layout: None,
-            module: &module,
-            entry_point: Some(entry),
-            compilation_options: Default::default(),
-            cache: None,
-        })
+        entries
+            .iter()
+            .map(|e| {
+                self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(e),
+                    layout: None,
+                    module: &module,
+                    entry_point: Some(e),
+                    compilation_options: Default::default(),
+                    cache: None,
+                })
+            })
+            .collect()
     }
 
     /// A bind group for group 0 of `pipeline`, binding `buffers` at 0, 1, 2, ….
     pub fn bind(&self, pipeline: &wgpu::ComputePipeline, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
+        let entries: Vec<(u32, &wgpu::Buffer)> = buffers.iter().enumerate().map(|(i, b)| (i as u32, *b)).collect();
+        self.bind_at(pipeline, &entries)
+    }
+
+    /// A bind group for group 0 of `pipeline` with buffers at explicit binding indices (for
+    /// shaders whose entry points use different subsets of one module's bindings).
+    pub fn bind_at(&self, pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = entries
             .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .map(|(i, b)| wgpu::BindGroupEntry { binding: *i, resource: b.as_entire_binding() })
             .collect();
         self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: None,

@@ -270,39 +270,7 @@ fn specialise(source: &str, vars: &[(&str, usize)]) -> String {
     s
 }
 
-/// Pipelines for several entry points of one WGSL module (layouts inferred per entry point).
-fn pipelines(gpu: &Gpu, label: &str, source: &str, entries: &[&str]) -> Vec<wgpu::ComputePipeline> {
-    let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    entries
-        .iter()
-        .map(|e| {
-            gpu.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(e),
-                layout: None,
-                module: &module,
-                entry_point: Some(e),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        })
-        .collect()
-}
 
-/// A bind group for `pipeline` with buffers at explicit binding indices.
-fn bind_at(gpu: &Gpu, pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry> = entries
-        .iter()
-        .map(|(i, b)| wgpu::BindGroupEntry { binding: *i, resource: b.as_entire_binding() })
-        .collect();
-    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &entries,
-    })
-}
 
 fn to_u32(what: &str, v: usize) -> Result<u32, GpuError> {
     u32::try_from(v).map_err(|_| GpuError::TooLarge(format!("{what}: {v} does not fit 32 bits")))
@@ -386,7 +354,7 @@ impl GpuPredictor {
         check_d(d)?;
         let scope = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let src = specialise(PREDICT_WGSL, &[("D", d)]);
-        let pipe = pipelines(gpu, "krr_predict", &src, &["predict"]).pop().expect("one pipeline");
+        let pipe = gpu.compute_pipelines("krr_predict", &src, &["predict"]).pop().expect("one pipeline");
         if let Some(e) = scope.pop().await {
             return Err(GpuError::Kernel(format!("building the predict kernel: {e}")).into());
         }
@@ -472,7 +440,7 @@ impl GpuPredictor {
                     _pad: [0; 3],
                 };
                 let dims = g.uniform("krr predict dims", &dims);
-                let bg = bind_at(g, &self.pipe, &[(0, &q_buf), (1, &z_buf), (2, &s_buf), (3, &b_buf), (4, &o_buf), (5, &dims)]);
+                let bg = g.bind_at(&self.pipe, &[(0, &q_buf), (1, &z_buf), (2, &s_buf), (3, &b_buf), (4, &o_buf), (5, &dims)]);
                 g.encode_pass(&mut enc, &self.pipe, &bg, groups);
             }
             g.queue.submit([enc.finish()]);
@@ -665,10 +633,10 @@ impl GpuObjective {
         let dq = d.div_ceil(8);
         let kernel_src = specialise(KERNEL_WGSL, &[("D", d)]);
         let grad_src = specialise(GRAD_WGSL, &[("D", d), ("DQ", dq), ("DP", dq * 8)]);
-        let kernel_block = pipelines(gpu, "krr_kernel_block", &kernel_src, &["kernel_block"]).pop().expect("one");
-        let mut gr = pipelines(gpu, "krr_gram", GRAM_WGSL, &["gram", "gram_b"]).into_iter();
+        let kernel_block = gpu.compute_pipelines("krr_kernel_block", &kernel_src, &["kernel_block"]).pop().expect("one");
+        let mut gr = gpu.compute_pipelines("krr_gram", GRAM_WGSL, &["gram", "gram_b"]).into_iter();
         let (gram, gram_b) = (gr.next().expect("gram"), gr.next().expect("gram_b"));
-        let mut g = pipelines(gpu, "krr_grad", &grad_src, &["residual", "grad_p", "grad_reduce", "grad_sum"]).into_iter();
+        let mut g = gpu.compute_pipelines("krr_grad", &grad_src, &["residual", "grad_p", "grad_reduce", "grad_sum"]).into_iter();
         let mut next = || g.next().expect("one pipeline per entry point");
         let pipes = Pipes {
             kernel_block,
@@ -815,8 +783,7 @@ impl GpuObjective {
                 "krr kernel dims",
                 &KernelDims { rows: blk.rows as u32, row0: blk.row0 as u32, m: m as u32, _pad: 0 },
             );
-            let bg = bind_at(
-                g,
+            let bg = g.bind_at(
                 &self.pipes.kernel_block,
                 &[(0, &self.x), (1, &ws.z), (2, &ws.inv_s), (3, &ws.k[b]), (4, &dims)],
             );
@@ -843,9 +810,9 @@ impl GpuObjective {
                         _pad: [0; 3],
                     },
                 );
-                let bg = bind_at(g, &self.pipes.gram, &[(0, &ws.k[b]), (1, &ws.acc), (2, &dims)]);
+                let bg = g.bind_at(&self.pipes.gram, &[(0, &ws.k[b]), (1, &ws.acc), (2, &dims)]);
                 g.encode_pass(&mut enc, &self.pipes.gram, &bg, [tiles, tiles, 1]);
-                let bg = bind_at(g, &self.pipes.gram_b, &[(0, &ws.k[b]), (2, &dims), (3, &self.yq), (4, &ws.bacc)]);
+                let bg = g.bind_at(&self.pipes.gram_b, &[(0, &ws.k[b]), (2, &dims), (3, &self.yq), (4, &ws.bacc)]);
                 g.encode_pass(&mut enc, &self.pipes.gram_b, &bg, [tiles, 1, 1]);
             }
         }
@@ -1037,20 +1004,17 @@ impl GpuObjective {
                 },
             );
             // r = K~β − y for this block, then P.
-            let bg = bind_at(
-                g,
+            let bg = g.bind_at(
                 &self.pipes.residual,
                 &[(0, &ws.k[bi]), (2, &ws.beta), (3, &ws.r), (8, &dims), (12, &self.y)],
             );
             g.encode_pass(&mut enc, &self.pipes.residual, &bg, g.dispatch_linear(blk.rows as u64, WG)?);
-            let bg = bind_at(
-                g,
+            let bg = g.bind_at(
                 &self.pipes.grad_p,
                 &[(0, &ws.k[bi]), (1, &ws.w), (2, &ws.beta), (3, &ws.r), (4, &ws.p), (8, &dims)],
             );
             g.encode_pass(&mut enc, &self.pipes.grad_p, &bg, [m.div_ceil(TILE) as u32, blk.rows.div_ceil(TILE) as u32, 1]);
-            let bg = bind_at(
-                g,
+            let bg = g.bind_at(
                 &self.pipes.grad_reduce,
                 &[(4, &ws.p), (5, &self.x), (6, &ws.z), (7, &ws.part), (8, &dims)],
             );
@@ -1058,7 +1022,7 @@ impl GpuObjective {
         }
         let len = 2 * m * d;
         let sdims = g.uniform("krr sum dims", &SumDims { len: len as u32, chunks: ws.total_chunks as u32, one: 1.0, _b: 0 });
-        let bg = bind_at(g, &self.pipes.grad_sum, &[(9, &ws.part), (10, &ws.sums), (11, &sdims)]);
+        let bg = g.bind_at(&self.pipes.grad_sum, &[(9, &ws.part), (10, &ws.sums), (11, &sdims)]);
         g.encode_pass(&mut enc, &self.pipes.grad_sum, &bg, g.dispatch_linear(len as u64, WG)?);
         g.queue.submit([enc.finish()]);
         g.poll_wait();

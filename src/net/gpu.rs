@@ -313,26 +313,6 @@ fn pack_unet(w: &Weights) -> (Vec<[f32; 4]>, BTreeMap<String, Slot>) {
     (v, slots)
 }
 
-/// Pipelines for several entry points of one WGSL module (layouts inferred per entry point).
-fn pipelines(gpu: &Gpu, label: &str, source: &str, entries: &[&str]) -> Vec<wgpu::ComputePipeline> {
-    let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    entries
-        .iter()
-        .map(|e| {
-            gpu.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(e),
-                layout: None,
-                module: &module,
-                entry_point: Some(e),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        })
-        .collect()
-}
 
 /// Substitutes `{{KEY}}` placeholders.
 fn specialise(source: &str, vars: &[(&str, usize)]) -> String {
@@ -370,9 +350,9 @@ impl GpuNet {
             DECODER_WGSL,
             &[("CB", cb), ("C_DIM", cfg.c_dim), ("HB", cfg.h_dec.div_ceil(4)), ("N_BLOCKS", cfg.n_blocks_dec)],
         );
-        let mut e = pipelines(gpu, "net_pointnet", &pointnet, &["enc_first", "enc_cellmax", "enc_block", "enc_scatter"]).into_iter();
-        let mut c = pipelines(gpu, "net_conv2d", CONV2D_WGSL, &["conv3x3", "maxpool2", "upconv2", "final1x1"]).into_iter();
-        let mut d = pipelines(gpu, "net_decoder", &decoder, &["decode"]).into_iter();
+        let mut e = gpu.compute_pipelines("net_pointnet", &pointnet, &["enc_first", "enc_cellmax", "enc_block", "enc_scatter"]).into_iter();
+        let mut c = gpu.compute_pipelines("net_conv2d", CONV2D_WGSL, &["conv3x3", "maxpool2", "upconv2", "final1x1"]).into_iter();
+        let mut d = gpu.compute_pipelines("net_decoder", &decoder, &["decode"]).into_iter();
         let next = |it: &mut std::vec::IntoIter<wgpu::ComputePipeline>| it.next().expect("one pipeline per entry");
         let pipes = Pipelines {
             enc_first: next(&mut e),
