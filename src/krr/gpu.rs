@@ -63,7 +63,7 @@
 
 use super::kernel;
 use super::linalg::{self, dot};
-use super::reference::{Eval, Grad, Params, Problem, Settings};
+use super::reference::{mm_grad, Eval, Grad, MmGrad, MmParts, Params, Problem, Settings};
 use super::KrrError;
 use crate::gpu::{Gpu, GpuError};
 
@@ -938,22 +938,7 @@ impl GpuObjective {
         let nf = n as f64;
         let (c, dd, t2) = (f.c, f.eval.d_term, f.eval.t2);
         let beta = &f.eval.beta;
-        let hkh = linalg::matmul(&linalg::matmul(&f.h_inv, &f.kj, m, m, m), &f.h_inv, m, m, m);
-        let hah = linalg::matmul(&linalg::matmul(&f.h_inv, &f.a, m, m, m), &f.h_inv, m, m, m);
-        let kak = linalg::matmul(&linalg::matmul(&f.kj_inv, &f.a, m, m, m), &f.kj_inv, m, m, m);
-        let mut w = vec![0.0; m * m];
-        let mut gmm = vec![0.0; m * m];
-        let s_beta = (c * t2 + 2.0) * lambda;
-        for j in 0..m {
-            for k in 0..m {
-                let i = j * m + k;
-                w[i] = 4.0 * lambda * hkh[i] - 2.0 * c * dd * f.kj_inv[i];
-                gmm[i] = -2.0 * lambda * hah[i] + c * dd * kak[i] + s_beta * beta[j] * beta[k];
-            }
-        }
-        linalg::symmetrize(&mut w, m);
-        linalg::symmetrize(&mut gmm, m);
-        let s_r = (c * t2 + 2.0) * (2.0 / nf);
+        let MmGrad { w, gmm, s_r } = mm_grad(&MmParts { h_inv: &f.h_inv, kj: &f.kj, kj_inv: &f.kj_inv, a: &f.a, beta, lambda, c, dd, t2, n: nf, m });
         let w32: Vec<f32> = w.iter().map(|&v| v as f32).collect();
         if w32.iter().any(|v| !v.is_finite()) || !(s_r as f32).is_finite() {
             return Err(KrrError::NonFinite("gradient weights W out of f32 range".into()).into());

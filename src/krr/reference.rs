@@ -293,6 +293,50 @@ const ROW_BLOCK: usize = 256;
 ///
 /// `G_mm` is the gradient with respect to the entries of `K_mm` taken as independent (it is
 /// symmetric), hence the factor 2 in the `Z` term: `z_j` enters row j and column j.
+/// The m × m inputs of the gradient's m × m part (method.md §6).
+pub(crate) struct MmParts<'a> {
+    pub h_inv: &'a [f64],
+    pub kj: &'a [f64],
+    pub kj_inv: &'a [f64],
+    pub a: &'a [f64],
+    pub beta: &'a [f64],
+    pub lambda: f64,
+    pub c: f64,
+    pub dd: f64,
+    pub t2: f64,
+    pub n: f64,
+    pub m: usize,
+}
+
+/// The gradient's m × m part: `W` (so that `G_nm = K_nm W + s_r r βᵀ`), `G_mm`, and `s_r`.
+/// Shared by the f64 reference and the GPU objective, which does this part on the CPU too.
+pub(crate) struct MmGrad {
+    pub w: Vec<f64>,
+    pub gmm: Vec<f64>,
+    pub s_r: f64,
+}
+
+pub(crate) fn mm_grad(p: &MmParts) -> MmGrad {
+    let m = p.m;
+    let hkh = linalg::matmul(&linalg::matmul(p.h_inv, p.kj, m, m, m), p.h_inv, m, m, m);
+    let hah = linalg::matmul(&linalg::matmul(p.h_inv, p.a, m, m, m), p.h_inv, m, m, m);
+    let kak = linalg::matmul(&linalg::matmul(p.kj_inv, p.a, m, m, m), p.kj_inv, m, m, m);
+    let mut w = vec![0.0; m * m];
+    let mut gmm = vec![0.0; m * m];
+    let s_beta = (p.c * p.t2 + 2.0) * p.lambda;
+    for j in 0..m {
+        for k in 0..m {
+            let i = j * m + k;
+            // (4/n) M1 with M1 = nλ H⁻¹K_jH⁻¹ is 4λ H⁻¹K_jH⁻¹.
+            w[i] = 4.0 * p.lambda * hkh[i] - 2.0 * p.c * p.dd * p.kj_inv[i];
+            gmm[i] = -2.0 * p.lambda * hah[i] + p.c * p.dd * kak[i] + s_beta * p.beta[j] * p.beta[k];
+        }
+    }
+    linalg::symmetrize(&mut w, m);
+    linalg::symmetrize(&mut gmm, m);
+    MmGrad { w, gmm, s_r: (p.c * p.t2 + 2.0) * (2.0 / p.n) }
+}
+
 pub fn objective_and_grad(problem: &Problem, params: &Params, settings: &Settings) -> Result<(Eval, Grad), KrrError> {
     let f = forward(problem, params, settings)?;
     let (n, m, d) = (f.n, f.m, problem.d);
@@ -301,24 +345,7 @@ pub fn objective_and_grad(problem: &Problem, params: &Params, settings: &Setting
     let (c, dd, t2) = (f.c, f.eval.d_term, f.eval.t2);
     let beta = &f.eval.beta;
 
-    // m × m pieces.
-    let hkh = linalg::matmul(&linalg::matmul(&f.h_inv, &f.kj, m, m, m), &f.h_inv, m, m, m);
-    let hah = linalg::matmul(&linalg::matmul(&f.h_inv, &f.a, m, m, m), &f.h_inv, m, m, m);
-    let kak = linalg::matmul(&linalg::matmul(&f.kj_inv, &f.a, m, m, m), &f.kj_inv, m, m, m);
-    let mut w = vec![0.0; m * m];
-    let mut gmm = vec![0.0; m * m];
-    let s_beta = (c * t2 + 2.0) * lambda;
-    for j in 0..m {
-        for k in 0..m {
-            let i = j * m + k;
-            // (4/n) M1 with M1 = nλ H⁻¹K_jH⁻¹ is 4λ H⁻¹K_jH⁻¹.
-            w[i] = 4.0 * lambda * hkh[i] - 2.0 * c * dd * f.kj_inv[i];
-            gmm[i] = -2.0 * lambda * hah[i] + c * dd * kak[i] + s_beta * beta[j] * beta[k];
-        }
-    }
-    linalg::symmetrize(&mut w, m);
-    linalg::symmetrize(&mut gmm, m);
-    let s_r = (c * t2 + 2.0) * (2.0 / nf);
+    let MmGrad { w, gmm, s_r } = mm_grad(&MmParts { h_inv: &f.h_inv, kj: &f.kj, kj_inv: &f.kj_inv, a: &f.a, beta, lambda, c, dd, t2, n: nf, m });
 
     let x = &problem.x;
     let z = &params.z;
