@@ -436,6 +436,30 @@ fn timings_n20000_m500_d32() {
     println!("timing n{n} m{m} d{d}: loss {:.6e}, T1 {:.3e}, T2 {:.3e}, D {:.3e}", e.loss, e.t1, e.t2, e.d_term);
 }
 
+/// The CPU's share (`cpu_algebra`: the f64 m × m algebra) at m = 500 and 1000, best of three
+/// evaluations with gradient each.
+#[test]
+#[ignore]
+fn timings_cpu_algebra_m500_m1000() {
+    let gpu = gpu();
+    println!("adapter: {}", gpu.describe());
+    let (n, d) = (20000, 32);
+    let p = random_problem(n, d, 91);
+    for m in [500, 1000] {
+        let params = random_params(&p, m, 92);
+        let mut obj = GpuObjective::new_blocking(&gpu, &p, Settings::new(1e-3, m)).unwrap();
+        let mut best: Option<nkrr::krr::PhaseTimings> = None;
+        for _ in 0..3 {
+            obj.eval_grad(&params).unwrap();
+            println!("  n{n} m{m} d{d} eval_grad: {}", obj.timings.summary());
+            if best.is_none_or(|b| obj.timings.cpu_algebra < b.cpu_algebra) {
+                best = Some(obj.timings);
+            }
+        }
+        println!("timing n{n} m{m} d{d} best cpu_algebra: {}", best.unwrap().summary());
+    }
+}
+
 /// The reference's forward pass (data_fit, ‖g‖², T1, T2, β) from a given K_nm, all f64.
 fn forward_sim(knm: &[f64], p: &Problem, params: &Params, s: &Settings) -> (f64, f64, f64, f64, Vec<f64>) {
     let (n, d) = (p.n(), p.d());

@@ -18,6 +18,10 @@
 //!    That is all [`Objective::eval`](super::Objective::eval) needs.
 //! 4. CPU f64, for the gradient: `W = 4λH⁻¹K_jH⁻¹ − 2cD K_j⁻¹`, `s_r = (cT2 + 2)(2/n)`, `G_mm` and
 //!    the whole `Q = G_mm ∘ K_mm` side of the gradient.
+//!
+//!    Steps 3–4 are the reference's own functions (`reference::mm_forward`, `mm_grad`,
+//!    `kmm_side`): blocked, threaded f64 kernels, about `3.5 m³` multiply-adds per evaluation
+//!    with gradient (see `mm_grad` for the algebra).
 //! 5. GPU (`shaders/krr_grad.wgsl`): `r = K~β − y` (`residual`, Kahan over m), then
 //!    `P = (K~W + s_r r βᵀ) ∘ K~` tile by tile (`grad_p`; `G_nm` is never stored, `P` one row block
 //!    at a time), then per chunk of rows `Σ_i P_ij (x_id − z_jd)` and `Σ_i P_ij (x_id − z_jd)²`
@@ -63,7 +67,7 @@
 
 use super::kernel;
 use super::linalg::{self, dot};
-use super::reference::{mm_grad, Eval, Grad, MmGrad, MmParts, Params, Problem, Settings};
+use super::reference::{kmm_side, mm_forward, mm_grad, Eval, Grad, MmForward, MmGrad, MmParts, Params, Problem, Settings};
 use super::KrrError;
 use crate::gpu::{Gpu, GpuError};
 
@@ -575,7 +579,8 @@ struct Forward {
     z: Vec<f64>,
     inv_s: Vec<f64>,
     kmm: Vec<f64>,
-    kj: Vec<f64>,
+    /// Cholesky factor of `K_j`.
+    lk: Vec<f64>,
     a: Vec<f64>,
     h_inv: Vec<f64>,
     kj_inv: Vec<f64>,
@@ -829,15 +834,19 @@ impl GpuObjective {
         let t = now_s();
         let mm = m * m;
         let mut a = vec![0.0; mm];
-        for j in 0..m {
-            for k in j..m {
-                let i = j * m + k;
-                let exact = words[i] as u128 | (words[mm + i] as u128) << 32 | (words[2 * mm + i] as u128) << 64;
-                let v = exact as f64 * 2f64.powi(-48);
-                a[i] = v;
-                a[k * m + j] = v;
+        // The upper triangle, threaded over rows, then mirrored.
+        const ROWS: usize = 16;
+        let work = |u: usize| (ROWS * (m - (u * ROWS).min(m)) * 4) as f64;
+        linalg::par_row_units(&mut a, m, m, ROWS, linalg::max_threads(), &work, |u0, u1, rows| {
+            for (j, row) in (u0 * ROWS..(u1 * ROWS).min(m)).zip(rows.chunks_mut(m)) {
+                for (k, v) in row.iter_mut().enumerate().skip(j) {
+                    let i = j * m + k;
+                    let exact = words[i] as u128 | (words[mm + i] as u128) << 32 | (words[2 * mm + i] as u128) << 64;
+                    *v = exact as f64 * 2f64.powi(-48);
+                }
             }
-        }
+        });
+        linalg::mirror_upper(&mut a, m);
         // Nh = Σ q·uh, Nl = Σ q·ul, Nq = Σ q (96-bit words); Σ q·qh = Nh − 2²⁴Nq, likewise ql;
         // b = S·2⁻²⁴·(Σ q·qh·2⁻²⁴ + Σ q·ql·2⁻⁴⁸), all in exact integers until the last step.
         let word = |k: usize, j: usize| -> i128 {
@@ -867,7 +876,7 @@ impl GpuObjective {
         // 1. GPU: K_aug blocks and A_aug.
         let (a, b) = self.gram_phase(m, &z32, &inv_s32, &mut tm).await?;
 
-        // 2. CPU: K_mm, H, β.
+        // 2. CPU: K_mm, the m × m algebra of the forward pass, the loss.
         let t = now_s();
         let settings = self.settings;
         let lambda = settings.lambda;
@@ -877,31 +886,20 @@ impl GpuObjective {
         let inv_s64: Vec<f64> = inv_s32.iter().map(|&v| v as f64).collect();
         // K_mm in f64 from the same f32-rounded parameters. (Measured: taking it from the GPU's
         // kernel code instead, for consistency with K_nm, changes nothing measurable.)
-        let mut kmm = kernel::cross(&z64, &z64, &inv_s64);
-        linalg::symmetrize(&mut kmm, m);
+        let kmm = kernel::cross_sym(&z64, &inv_s64);
         let mut kj = kmm.clone();
         for j in 0..m {
             kj[j * m + j] += settings.jitter;
         }
-        let mut h = a.clone();
-        for (hv, kv) in h.iter_mut().zip(&kj) {
-            *hv += nl * kv;
-        }
-        let lh = linalg::cholesky(&h, m, "H = K_nm^T K_nm + n lambda (K_mm + jitter I)")?;
-        let beta = linalg::cholesky_solve(&lh, m, &b, 1);
-        tm.cpu_algebra += now_s() - t;
+        // H, its factor, β, K_j's factor, both inverses, T1 and T2.
+        let MmForward { lk, beta, h_inv, kj_inv, t1, t2 } = mm_forward(&a, &kj, &b, nl, nf, m)?;
 
-        // D, T1, T2, loss. A and b are exact (for K~ and the fixed-point y~), so the m × m form of
+        // D and the loss. A and b are exact (for K~ and the fixed-point y~), so the m × m form of
         // ‖K~β − y~‖² is exact up to f64 rounding: no residual pass needed.
         let ab = linalg::matvec(&a, &beta, m, m);
         let data_fit = ((self.yy - 2.0 * dot(&b, &beta) + dot(&beta, &ab)) / nf).max(0.0);
         let rkhs_norm2 = dot(&beta, &linalg::matvec(&kj, &beta, m, m));
         let d_term = data_fit + lambda * rkhs_norm2;
-        let h_inv = linalg::cholesky_inverse(&lh, m);
-        let lk = linalg::cholesky(&kj, m, "K_mm + jitter I")?;
-        let kj_inv = linalg::cholesky_inverse(&lk, m);
-        let t1 = linalg::trace_prod(&h_inv, &a, m);
-        let t2 = nf - linalg::trace_prod(&kj_inv, &a, m);
         let c = settings.weighting.c(n, lambda);
         let loss = 2.0 / nf * t1 + c * t2 * d_term + 2.0 * d_term;
         if !loss.is_finite() {
@@ -914,7 +912,7 @@ impl GpuObjective {
         tm.cpu_algebra += now_s() - t;
 
         let grad = if want_grad {
-            let fwd = Forward { m, z: z64, inv_s: inv_s64, kmm, kj, a, h_inv, kj_inv, c, eval: eval.clone() };
+            let fwd = Forward { m, z: z64, inv_s: inv_s64, kmm, lk, a, h_inv, kj_inv, c, eval: eval.clone() };
             Some(self.backward(&fwd, &mut tm).await?)
         } else {
             None
@@ -938,29 +936,14 @@ impl GpuObjective {
         let nf = n as f64;
         let (c, dd, t2) = (f.c, f.eval.d_term, f.eval.t2);
         let beta = &f.eval.beta;
-        let MmGrad { w, gmm, s_r } = mm_grad(&MmParts { h_inv: &f.h_inv, kj: &f.kj, kj_inv: &f.kj_inv, a: &f.a, beta, lambda, c, dd, t2, n: nf, m });
+        let MmGrad { w, gmm, s_r } = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &f.a, beta, lambda, c, dd, t2, n: nf, m });
         let w32: Vec<f32> = w.iter().map(|&v| v as f32).collect();
         if w32.iter().any(|v| !v.is_finite()) || !(s_r as f32).is_finite() {
             return Err(KrrError::NonFinite("gradient weights W out of f32 range".into()).into());
         }
 
-        // The K_mm side: Q_jk = G_mm,jk · K_mm,jk (the jitter is constant, so K_mm, not K_j).
-        let z = &f.z;
-        let mut gz = vec![0.0; m * d];
-        let mut gs = vec![0.0; d];
-        for j in 0..m {
-            for k in 0..m {
-                if j == k {
-                    continue;
-                }
-                let q = gmm[j * m + k] * f.kmm[j * m + k];
-                for t in 0..d {
-                    let e = z[k * d + t] - z[j * d + t];
-                    gz[j * d + t] += 2.0 * q * e;
-                    gs[t] += q * e * e;
-                }
-            }
-        }
+        // The K_mm side: Q = G_mm ∘ K_mm.
+        let (mut gz, mut gs) = kmm_side(&gmm, &f.kmm, &f.z, m, d);
         tm.cpu_algebra += now_s() - t;
 
         // The K_nm side on the GPU.

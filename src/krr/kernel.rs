@@ -22,28 +22,69 @@ pub fn k_pair(x: &[f64], z: &[f64], inv_s: &[f64]) -> f64 {
     (-0.5 * d2).exp()
 }
 
+/// Rescaled rows `v_d / s_d`, so that distances are plain squared distances.
+fn rescale(m: &[f64], inv_s: &[f64]) -> Vec<f64> {
+    m.chunks_exact(inv_s.len()).flat_map(|r| r.iter().zip(inv_s).map(|(v, w)| v * w)).collect()
+}
+
+#[inline]
+fn k_scaled(u: &[f64], v: &[f64]) -> f64 {
+    let mut d2 = 0.0;
+    for (a, b) in u.iter().zip(v) {
+        let t = a - b;
+        d2 += t * t;
+    }
+    (-0.5 * d2).exp()
+}
+
+/// Rows of the result per unit of work handed to a thread.
+const ROWS: usize = 8;
+
 /// Cross kernel matrix `K(A, B)` (`na × nb`) between the rows of `a` (`na × d`) and `b`
-/// (`nb × d`); `inv_s` holds `1/s_d` (length `d`).
+/// (`nb × d`); `inv_s` holds `1/s_d` (length `d`). Threaded over rows natively.
 pub fn cross(a: &[f64], b: &[f64], inv_s: &[f64]) -> Vec<f64> {
     let d = inv_s.len();
     assert!(d > 0 && a.len().is_multiple_of(d) && b.len().is_multiple_of(d), "kernel::cross: shapes");
     // Rescale once so the inner loop is a plain squared distance.
-    let scale = |m: &[f64]| -> Vec<f64> {
-        m.chunks_exact(d).flat_map(|r| r.iter().zip(inv_s).map(|(v, w)| v * w)).collect()
-    };
-    let (sa, sb) = (scale(a), scale(b));
-    let nb = b.len() / d;
-    let mut k = Vec::with_capacity(a.len() / d * nb);
-    for ra in sa.chunks_exact(d) {
-        for rb in sb.chunks_exact(d) {
-            let mut d2 = 0.0;
-            for (u, v) in ra.iter().zip(rb) {
-                let t = u - v;
-                d2 += t * t;
-            }
-            k.push((-0.5 * d2).exp());
-        }
+    let (sa, sb) = (rescale(a, inv_s), rescale(b, inv_s));
+    let (na, nb) = (a.len() / d, b.len() / d);
+    let mut k = vec![0.0; na * nb];
+    if nb == 0 {
+        return k;
     }
+    let work = (ROWS * nb * (d + 8)) as f64;
+    super::linalg::par_row_units(&mut k, nb, na, ROWS, super::linalg::max_threads(), &|_| work, |u0, u1, out| {
+        for (ra, orow) in sa[u0 * ROWS * d..(u1 * ROWS).min(na) * d].chunks_exact(d).zip(out.chunks_mut(nb)) {
+            for (o, rb) in orow.iter_mut().zip(sb.chunks_exact(d)) {
+                *o = k_scaled(ra, rb);
+            }
+        }
+    });
+    k
+}
+
+/// `K(A, A)` (`n × n`) for the rows of `a`: the upper triangle, mirrored — exactly symmetric,
+/// and entry for entry what [`cross`]`(a, a, inv_s)` gives (`(u − v)² = (v − u)²` exactly).
+pub fn cross_sym(a: &[f64], inv_s: &[f64]) -> Vec<f64> {
+    let d = inv_s.len();
+    assert!(d > 0 && a.len().is_multiple_of(d), "kernel::cross_sym: shapes");
+    let sa = rescale(a, inv_s);
+    let n = a.len() / d;
+    let mut k = vec![0.0; n * n];
+    if n == 0 {
+        return k;
+    }
+    let work = |u: usize| (ROWS * (n - (u * ROWS).min(n)) * (d + 8)) as f64;
+    super::linalg::par_row_units(&mut k, n, n, ROWS, super::linalg::max_threads(), &work, |u0, u1, out| {
+        for i in u0 * ROWS..(u1 * ROWS).min(n) {
+            let ri = &sa[i * d..(i + 1) * d];
+            let orow = &mut out[(i - u0 * ROWS) * n..(i - u0 * ROWS) * n + n];
+            for (j, rj) in sa.chunks_exact(d).enumerate().skip(i) {
+                orow[j] = k_scaled(ri, rj);
+            }
+        }
+    });
+    super::linalg::mirror_upper(&mut k, n);
     k
 }
 
@@ -56,7 +97,7 @@ pub fn k_nm(x: &[f64], z: &[f64], log_s: &[f64]) -> Vec<f64> {
 pub fn k_mm(z: &[f64], log_s: &[f64]) -> Vec<f64> {
     let d = log_s.len();
     let m = z.len() / d;
-    let mut k = cross(z, z, &inv_scales(log_s));
-    super::linalg::symmetrize(&mut k, m);
+    let k = cross_sym(z, &inv_scales(log_s));
+    debug_assert_eq!(k.len(), m * m);
     k
 }
