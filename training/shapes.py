@@ -168,10 +168,15 @@ class Shape:
         """SDF (sign exact, magnitude approximate) in the pre-normalisation world frame."""
         x = _mat3(p / self.scale, self.G)
         d = None
-        for op, prim in self.ops:
+        for o in self.ops:
+            op, prim = o[0], o[1]
             dp = prim(x)
             if d is None:
                 d = dp
+            elif op == "s":  # smooth union (polynomial smooth-min) with radius o[2]
+                k = F(o[2])
+                h = np.clip(0.5 + 0.5 * (dp - d) / k, 0.0, 1.0)
+                d = dp * (1 - h) + d * h - k * h * (1 - h)
             elif op == "u":
                 d = np.minimum(d, dp)
             elif op == "d":
@@ -421,7 +426,44 @@ def fam_sofa_bed(rng):
     return ops
 
 
+def _frame_y_to(u):
+    """Rotation (local -> world) taking local y to the unit vector u."""
+    a = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(a, u)
+    return np.stack([a, u, b], 1).astype(F)
+
+
+def fam_blob(rng):
+    """Organic shapes: a body with limbs, head and bumps, blended by smooth unions (animals,
+    figurines, scanned objects are smooth where CSG is sharp)."""
+    body = np.array([_u(rng, 0.2, 0.42), _u(rng, 0.12, 0.3), _u(rng, 0.12, 0.3)])
+    ops = [("u", Prim("ellipsoid", (list(body),), (0, 0, 0), rot_matrix(rng, "yaw")))]
+    for _ in range(int(rng.integers(2, 9))):
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        at = u * body * _u(rng, 0.6, 1.0)
+        k = _u(rng, 0.02, 0.1)
+        r = rng.random()
+        if r < 0.5:  # limb
+            h = _u(rng, 0.05, 0.25)
+            ops.append(("s", Prim("capsule", (_u(rng, 0.025, 0.1), h), at + u * h * _u(rng, 0.3, 1.0),
+                                  _frame_y_to(u)), k))
+        elif r < 0.8:  # head or bump
+            ops.append(("s", Prim("ellipsoid", ([_u(rng, 0.05, 0.18), _u(rng, 0.05, 0.18), _u(rng, 0.05, 0.18)],),
+                                  at + u * _u(rng, 0.0, 0.12), rot_matrix(rng, "full")), k))
+        else:  # ear, fin, tail: a flattened ellipsoid
+            ops.append(("s", Prim("ellipsoid", ([_u(rng, 0.06, 0.16), _u(rng, 0.015, 0.04), _u(rng, 0.04, 0.12)],),
+                                  at + u * 0.05, rot_matrix(rng, "full")), k))
+    if rng.random() < 0.25:  # a dent or socket
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        ops.append(("d", Prim("sphere", (_u(rng, 0.03, 0.08),), u * body)))
+    return ops
+
+
 FAMILIES = [
+    ("blob", fam_blob, 0.30),
     ("csg", fam_random_csg, 0.32), ("chair", fam_chair, 0.18), ("table", fam_table, 0.16),
     ("lamp", fam_lamp, 0.12), ("frame", fam_frame, 0.12), ("sofa", fam_sofa_bed, 0.10),
 ]

@@ -16,6 +16,7 @@ import os
 import platform
 import random
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -39,14 +40,14 @@ def lr_at(frac, base, warm=0.02, final=0.05):
 
 
 @torch.no_grad()
-def evaluate(model, held, bs=8):
+def evaluate(model, held, bs=8, device="cpu"):
     model.eval()
     inter = union = 0.0
     ious, losses = [], []
     for i in range(0, len(held["cloud"]), bs):
-        p = torch.from_numpy(held["cloud"][i:i + bs])
-        q = torch.from_numpy(held["q"][i:i + bs])
-        y = torch.from_numpy(held["occ"][i:i + bs].astype(np.float32))
+        p = torch.from_numpy(held["cloud"][i:i + bs]).to(device)
+        q = torch.from_numpy(held["q"][i:i + bs]).to(device)
+        y = torch.from_numpy(held["occ"][i:i + bs].astype(np.float32)).to(device)
         lg = model(p, q)
         losses.append(Fn.binary_cross_entropy_with_logits(lg, y, reduction="none").mean(1))
         pr = lg > 0
@@ -86,11 +87,28 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cache", default=str(CACHE))
     ap.add_argument("--runs", default=str(RUNS))
+    ap.add_argument("--device", default="cpu", help="torch device: cpu or cuda")
+    ap.add_argument("--init", default=None, help="fresh run: start from this checkpoint's model weights")
+    ap.add_argument("--gen-workers", type=int, default=0,
+                    help="generate chunks in N background processes (replaces --gen-every)")
+    ap.add_argument("--gen-chunks", type=int, default=2000, help="chunk ids the background workers may fill")
+    ap.add_argument("--min-pool", type=int, default=32, help="with --gen-workers: wait for this many shapes")
     for k, v in Config().to_dict().items():
         ap.add_argument("--" + k.replace("_", "-"), type=type(v), default=v)
     a = ap.parse_args(argv)
 
     torch.set_num_threads(a.threads)
+    dev = torch.device(a.device)
+    workers = None
+    if a.gen_workers:
+        # Fork the generators before CUDA is initialised; each writes whole chunk files that the
+        # pool picks up on refresh, so the training loop never waits on shape generation.
+        import multiprocessing as mp
+        from .data import gen_chunk, missing_chunks
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        workers = mp.get_context("fork").Pool(a.gen_workers)
+        gen_async = workers.map_async(partial(gen_chunk, cache=a.cache), missing_chunks(a.gen_chunks, a.cache),
+                                      chunksize=1)
     run = Path(a.runs) / a.name
     run.mkdir(parents=True, exist_ok=True)
     ckpt_path = run / "ckpt.pt"
@@ -101,7 +119,7 @@ def main(argv=None):
         metrics.flush()
 
     if ckpt_path.exists():
-        st = torch.load(ckpt_path, weights_only=False)
+        st = torch.load(ckpt_path, weights_only=False, map_location="cpu")
         cfg = Config(**st["config"])
         model = ConvONet(cfg)
         model.load_state_dict(st["model"])
@@ -116,20 +134,34 @@ def main(argv=None):
         print(f"resumed {ckpt_path} at step {step}, {elapsed / 60:.1f} train-min", flush=True)
         a.total_minutes = args0["total_minutes"]
         a.lr = args0["lr"]
+        model.to(dev)
+        opt.load_state_dict(st["opt"])  # again, so the moments follow the parameters' device
     else:
         cfg = Config(**{k: getattr(a, k) for k in Config().to_dict()})
         torch.manual_seed(a.seed)
         random.seed(a.seed)
         rng = np.random.default_rng(a.seed)
-        model = ConvONet(cfg)
+        if a.init:
+            st0 = torch.load(a.init, weights_only=False, map_location="cpu")
+            cfg = Config(**st0["config"])
+            model = ConvONet(cfg)
+            model.load_state_dict(st0["model"])
+            print(f"initialised from {a.init} (step {st0['step']})", flush=True)
+        else:
+            model = ConvONet(cfg)
+        model.to(dev)
         opt = torch.optim.Adam(model.parameters(), lr=a.lr)
         step, elapsed = 0, 0.0
         args0 = vars(a).copy()
         log(event="start", config=cfg.to_dict(), args=args0, machine=platform.platform(),
             cpu=platform.processor() or platform.machine(), cores=os.cpu_count(),
-            torch=torch.__version__, params=sum(p.numel() for p in model.parameters()))
+            torch=torch.__version__, device=str(dev),
+            gpu=torch.cuda.get_device_name(dev) if dev.type == "cuda" else None, params=sum(p.numel() for p in model.parameters()))
 
     pool = Pool(a.cache)
+    while workers is not None and len(pool) < a.min_pool and not gen_async.ready():
+        time.sleep(1.0)
+        pool.refresh()
     gen = InlineGenerator(a.cache)
     held = heldout_set(a.heldout, cache=a.cache)
     print(f"config {cfg.to_dict()}; params {sum(p.numel() for p in model.parameters())}; "
@@ -149,10 +181,18 @@ def main(argv=None):
                     torch_rng=torch.get_rng_state(), py_rng=random.getstate(), pool_size=len(pool))
 
     if step == 0:
-        iou, hl = evaluate(model, held)
+        iou, hl = evaluate(model, held, device=dev)
         log(event="eval", step=0, elapsed=0.0, heldout_iou=iou, heldout_loss=hl, pool=len(pool))
     reason = "budget"
     elapsed0 = elapsed
+
+    def next_batch():
+        return make_batch(pool, rng, a.batch, n_q=a.n_query, noise_max=a.noise_max,
+                          pts_range=(a.pts_min, a.pts_max))
+
+    from concurrent.futures import ThreadPoolExecutor
+    batcher = ThreadPoolExecutor(1)
+    prefetch = None
     while True:
         elapsed = elapsed0 + (time.time() - t_start)  # wall time of training, summed over resumes
         frac = elapsed / budget
@@ -168,10 +208,14 @@ def main(argv=None):
         lr = lr_at(frac, a.lr)
         for g in opt.param_groups:
             g["lr"] = lr
-        P, Q, Y = make_batch(pool, rng, a.batch, n_q=a.n_query, noise_max=a.noise_max,
-                             pts_range=(a.pts_min, a.pts_max))
-        logits = model(torch.from_numpy(P), torch.from_numpy(Q))
-        loss = Fn.binary_cross_entropy_with_logits(logits, torch.from_numpy(Y))
+        if prefetch is None:
+            P, Q, Y = next_batch()
+        else:
+            P, Q, Y = prefetch.result()
+        # Build the next batch on a CPU thread while torch works on this one.
+        prefetch = batcher.submit(next_batch)
+        logits = model(torch.from_numpy(P).to(dev), torch.from_numpy(Q).to(dev))
+        loss = Fn.binary_cross_entropy_with_logits(logits, torch.from_numpy(Y).to(dev))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         gn = torch.nn.utils.clip_grad_norm_(model.parameters(), 5.0)
@@ -182,7 +226,10 @@ def main(argv=None):
             raise SystemExit(f"non-finite loss at step {step}")
         run_loss += lv
         run_n += 1
-        if a.gen_every and step % a.gen_every == 0:
+        if workers is not None:
+            if step % 25 == 0:
+                pool.refresh()
+        elif a.gen_every and step % a.gen_every == 0:
             if gen.step():
                 pool.refresh()
         if step % 10 == 0:
@@ -195,7 +242,7 @@ def main(argv=None):
             run_loss, run_n, t_last = 0.0, 0, now
         if step % a.eval_every == 0:
             te = time.time()
-            iou, hl = evaluate(model, held)
+            iou, hl = evaluate(model, held, device=dev)
             log(event="eval", step=step, elapsed=elapsed, heldout_iou=iou, heldout_loss=hl, pool=len(pool))
             print(f"eval step {step}: held-out IoU {iou:.4f} loss {hl:.4f} ({time.time() - te:.1f}s)", flush=True)
             t_last += time.time() - te
@@ -203,9 +250,11 @@ def main(argv=None):
             save_ckpt(ckpt_path, state())
             t_ckpt = time.time()
     elapsed = elapsed0 + (time.time() - t_start)
-    iou, hl = evaluate(model, held)
+    iou, hl = evaluate(model, held, device=dev)
     log(event="eval", step=step, elapsed=elapsed, heldout_iou=iou, heldout_loss=hl, pool=len(pool))
     save_ckpt(ckpt_path, state())
+    if workers is not None:
+        workers.terminate()
     log(event="stop", step=step, elapsed=elapsed, reason=reason, heldout_iou=iou)
     print(f"stopped ({reason}) at step {step}, {elapsed / 60:.1f} train-min, held-out IoU {iou:.4f}", flush=True)
 
