@@ -15,7 +15,9 @@ USAGE:
         --max-points N             subsample larger clouds for the encoder   [100000]
         --m N                      inducing points of the KRR                [500]
         --steps N                  Adam steps of the test-time tuning        [100]
-        --lambda X                 ridge parameter of the KRR                [0.001]
+        --lambda X                 ridge parameter of the KRR                [1e-5]
+        --label-clip C             clip the network logits used as targets to [-C, C]  [4]
+        --no-label-clip            regress the raw logits (the paper's targets)
         --no-tune | --no-theta | --no-z   the paper's ablations
         --euclidean                KRR on Fourier-encoded coordinates, not features (ablation)
         --krr-backend auto|gpu|cpu where the KRR objective runs (auto: CPU f64 on software
@@ -129,6 +131,14 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             "--max-points" => settings.max_points = parse::<usize>(&value(a)?, a)?.max(1),
             "--m" => settings.m = parse::<usize>(&value(a)?, a)?.max(1),
             "--steps" => settings.steps = parse(&value(a)?, a)?,
+            "--no-label-clip" => settings.label_clip = None,
+            "--label-clip" => {
+                let c: f32 = parse(&value(a)?, a)?;
+                if !(c > 0.0) {
+                    return Err(usage("--label-clip must be > 0"));
+                }
+                settings.label_clip = Some(c);
+            }
             "--lambda" => {
                 let l: f64 = parse(&value(a)?, a)?;
                 if !(l > 0.0 && l.is_finite()) {
@@ -184,6 +194,9 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             "tuning ({}): n {} m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e} (best at step {})",
             t.backend, t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit, t.best_step
         );
+        if let Some(p) = &t.phases {
+            eprintln!("tuning phases over {} evaluations: {}", t.evaluations, p.summary());
+        }
     }
     for n in &rec.notices {
         eprintln!("notice: {n}");
@@ -258,8 +271,11 @@ fn bench(args: &[String]) -> Result<(), Failure> {
         ms = vec![0];
     }
     println!("method {:?}, {} Adam steps, resolution {}", settings.method, settings.steps, settings.resolution);
-    println!("| points | m | features s | pairs s | tuning s | s/step | mesh s | total s | field evals |");
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("Per objective evaluation (ms): kernel = K_nm blocks + A = K_nm^T K_nm on the GPU; solve = the f64 m x m");
+    println!("algebra on the CPU (Cholesky solves, traces, W, G_mm); gradient = residual + G_nm o K_nm pass + reductions");
+    println!("on the GPU; readback = device-to-host copies. mesh = field evaluations + marching cubes.");
+    println!("| points | m | features s | pairs s | tuning s | evals | s/eval | kernel ms | solve ms | gradient ms | readback ms | mesh s | total s | field evals |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for &n in &sizes {
         let cloud = synthetic_torus(n, 0.005, n as u64);
         for &m in &ms {
@@ -269,10 +285,18 @@ fn bench(args: &[String]) -> Result<(), Failure> {
                 .map_err(|e| fail(format!("{n} points, m {m}: {e}")))?;
             let total = nkrr::pipeline::now() - t0;
             let t = |stage: &str| rec.timings.iter().find(|(k, _)| *k == stage).map_or(0.0, |(_, v)| *v);
-            let per_step = rec.tuning.as_ref().map_or(0.0, |x| t("tuning") / (x.steps_run + 1) as f64);
+            let evals = rec.tuning.as_ref().map_or(0, |x| x.evaluations);
+            let per_eval = if evals > 0 { t("tuning") / evals as f64 } else { 0.0 };
+            let ph = rec.tuning.as_ref().and_then(|x| x.phases);
+            let ms = |f: fn(&nkrr::krr::PhaseTimings) -> f64| match ph {
+                Some(p) if evals > 0 => format!("{:.1}", f(&p) * 1e3 / evals as f64),
+                _ => "-".into(),
+            };
             println!(
-                "| {n} | {m} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2} | {:.2} | {} |",
-                t("features"), t("pairs"), t("tuning"), per_step, t("mesh"), total, rec.extract.refine.evaluations
+                "| {n} | {m} | {:.2} | {:.2} | {:.2} | {evals} | {:.3} | {} | {} | {} | {} | {:.2} | {:.2} | {} |",
+                t("features"), t("pairs"), t("tuning"), per_eval,
+                ms(|p| p.kernel + p.gram), ms(|p| p.cpu_algebra), ms(|p| p.grad_pass), ms(|p| p.readback),
+                t("mesh"), total, rec.extract.refine.evaluations
             );
         }
     }

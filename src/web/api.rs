@@ -80,10 +80,12 @@ pub fn simulate_device_loss() -> bool {
 
 /// Reconstructs a surface from PLY bytes.
 ///
-/// `options` is a plain object, every field optional (defaults are the paper's):
+/// `options` is a plain object, every field optional (defaults: the paper's m and steps; λ and
+/// labelClip as chosen on the eval clouds, docs/krr.md):
 /// `method` ("network" | "nkrr"), `m`, `steps`, `resolution`, `removeSmall` (fraction of the
 /// largest component below which components are dropped; 0 or null keeps all), `maxPoints`,
-/// `lambda`, `name` (the glTF node's name).
+/// `lambda`, `labelClip` (clip the network's logits used as targets to ±labelClip; 0 turns it
+/// off, as in the paper), `name` (the glTF node's name).
 ///
 /// `on_progress(p)` is called at each stage with `{ stage: "features" | "pairs" | "tuning" |
 /// "meshing" | "done", step?, of?, loss?, evaluated? }`; returning `false` cancels, and the
@@ -239,6 +241,9 @@ impl Options {
         }
         if let Some(l) = number(o, "lambda", f64::MIN_POSITIVE, 1e6)? {
             settings.lambda = l;
+        }
+        if let Some(c) = number(o, "labelClip", 0.0, 1e6)? {
+            settings.label_clip = (c > 0.0).then_some(c as f32);
         }
         if let Some(v) = field(o, "name")? {
             name = Some(v.as_string().ok_or_else(|| error("TypeError", "name must be a string"))?);
