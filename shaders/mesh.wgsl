@@ -1,6 +1,7 @@
 // The reconstructed mesh: indexed triangles with vertex normals, lit by a key light that follows
 // the camera (above and to the left of it) plus a dim fill and a little specular. Faces seen
 // from behind are drawn in a darker, warmer tone so a hole or an inside-out patch is visible.
+// `fs_wire` colours the optional wireframe (the same vertices drawn as a line list).
 
 struct MeshView {
     view_proj: mat4x4<f32>,
@@ -44,4 +45,10 @@ fn fs(in: VOut) -> @location(0) vec4<f32> {
     let base = select(view.base.rgb, vec3<f32>(0.62, 0.36, 0.30), back);
     let c = base * (0.18 + 0.72 * key + 0.15 * fill) + vec3<f32>(spec);
     return vec4<f32>(c, 1.0);
+}
+
+@fragment
+fn fs_wire(in: VOut) -> @location(0) vec4<f32> {
+    // The page's accent: visible on the light mesh and on the dark background alike.
+    return vec4<f32>(0.16, 0.55, 0.52, 1.0);
 }

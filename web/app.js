@@ -94,6 +94,7 @@ async function openFile(file, source = null) {
     }));
   }
   $('show-mesh').disabled = true;
+  $('show-wire').disabled = true;
   cloud.free();
   input = { name: file.name, file, source }; // the worker reads the file itself for each run
   updateShareLink();
@@ -121,10 +122,13 @@ function readOptions() {
   return o;
 }
 
+/** True when WebGPU runs on a software adapter (SwiftShader, lavapipe): no GPU to tune on. */
+let softwareAdapter = false;
+
 function syncMethodFields() {
   const nkrr = $('method').value === 'nkrr';
   $('nkrr-fields').disabled = !nkrr;
-  $('nkrr-note').hidden = !nkrr;
+  $('nkrr-note').hidden = !(nkrr && softwareAdapter);
 }
 
 // ---- The reconstructor (web/reconstructor.js: a worker with its own GPU device) -------
@@ -264,11 +268,12 @@ function onDone(r) {
     notShown = e.message ?? String(e);
   }
   $('show-mesh').disabled = false;
+  $('show-wire').disabled = false;
   applyVisibility();
   requestRender();
   $('progress-bar').value = 1;
   $('stage').textContent = `Done in ${secs(elapsed)}`;
-  setResult({ name, glb: r.glb, stats: r.stats, elapsed });
+  setResult({ name, glb: r.glb, stats: r.stats, elapsed, mesh: { positions: r.positions, normals: r.normals, indices: r.indices } });
   finish('done', notShown ?? '');
   $('result').scrollIntoView({ block: 'nearest' });
 }
@@ -295,12 +300,21 @@ function setResult(r) {
   $('r-bytes').textContent = `${r.name}.glb, ${fmt.format(Math.round(s.bytes / 1024))} KiB`;
   $('r-notices').replaceChildren(...s.notices.map((n) => Object.assign(document.createElement('li'), { textContent: n })));
   $('download').textContent = `Download ${r.name}.glb`;
+  $('download-ply').textContent = `Download ${r.name}.ply`;
 }
 
-function download() {
+function download(format = 'glb') {
   if (!result) return;
-  const url = URL.createObjectURL(new Blob([result.glb], { type: 'model/gltf-binary' }));
-  const a = Object.assign(document.createElement('a'), { href: url, download: `${result.name}.glb` });
+  let bytes = result.glb;
+  let type = 'model/gltf-binary';
+  if (format === 'ply') {
+    // Written on demand from the arrays the viewer already holds (binary PLY with normals).
+    const m = result.mesh;
+    bytes = nk.mesh_to_ply(m.positions, m.normals, m.indices, `nkrr reconstruction of ${result.name}`);
+    type = 'application/octet-stream';
+  }
+  const url = URL.createObjectURL(new Blob([bytes], { type }));
+  const a = Object.assign(document.createElement('a'), { href: url, download: `${result.name}.${format}` });
   document.body.append(a);
   a.click();
   a.remove();
@@ -309,6 +323,7 @@ function download() {
 
 function applyVisibility() {
   viewer?.set_visible($('show-cloud').checked, $('show-mesh').checked);
+  viewer?.set_wireframe($('show-wire').checked);
   requestRender();
 }
 
@@ -401,13 +416,15 @@ function wireInput() {
   $('point-size').addEventListener('input', (e) => { viewer?.set_point_size(Number(e.target.value) * (window.devicePixelRatio || 1)); requestRender(); });
   $('show-cloud').addEventListener('change', applyVisibility);
   $('show-mesh').addEventListener('change', applyVisibility);
+  $('show-wire').addEventListener('change', applyVisibility);
   new ResizeObserver(fitCanvas).observe(canvas);
 
   $('method').addEventListener('change', syncMethodFields);
   $('settings').addEventListener('change', updateShareLink);
   $('settings').addEventListener('submit', (e) => { e.preventDefault(); run(); });
   $('cancel').addEventListener('click', () => cancel());
-  $('download').addEventListener('click', download);
+  $('download').addEventListener('click', () => download('glb'));
+  $('download-ply').addEventListener('click', () => download('ply'));
   syncMethodFields();
 }
 
@@ -419,6 +436,13 @@ async function boot() {
     fitCanvas();
     viewer = await nk.Viewer.create($('view'));
     $('adapter').textContent = `GPU: ${viewer.adapter}`;
+    // The adapter line reads "NAME (DeviceType, Backend, …)". nkrr (the default) tunes on the
+    // GPU; on a CPU adapter that would take minutes, so the network alone becomes the default
+    // there (a share link's own method still wins, in openFromQuery).
+    softwareAdapter = /\(Cpu\b/.test(viewer.adapter);
+    document.body.dataset.software = String(softwareAdapter);
+    if (softwareAdapter) $('method').value = 'network';
+    syncMethodFields();
   } catch (e) {
     show(`${NO_WEBGPU}\n(${e.message ?? e})`, 'error');
     document.body.dataset.state = 'no-webgpu';

@@ -2,6 +2,7 @@
 //! wrong and where; none of them panics or allocates more than the input can justify.
 
 pub mod gltf;
+pub mod mesh_out;
 pub mod ply;
 mod summary;
 

@@ -85,7 +85,8 @@ pub fn simulate_device_loss() -> bool {
 /// `method` ("network" | "nkrr"), `m`, `steps`, `resolution`, `removeSmall` (fraction of the
 /// largest component below which components are dropped; 0 or null keeps all), `maxPoints`,
 /// `lambda`, `labelClip` (clip the network's logits used as targets to ±labelClip; 0 turns it
-/// off, as in the paper), `name` (the glTF node's name).
+/// off, as in the paper), `krrBackend` ("auto" | "gpu" | "cpu": where the tuning objective runs;
+/// auto = the GPU unless the adapter is a CPU), `name` (the glTF node's name).
 ///
 /// `on_progress(p)` is called at each stage with `{ stage: "features" | "pairs" | "tuning" |
 /// "meshing" | "done", step?, of?, loss?, evaluated? }`; returning `false` cancels, and the
@@ -93,6 +94,19 @@ pub fn simulate_device_loss() -> bool {
 ///
 /// Resolves to `{ glb: Uint8Array, positions: Float32Array, normals: Float32Array,
 /// indices: Uint32Array, stats }` (see `stats_object` for the fields of `stats`).
+/// A binary little-endian PLY of a mesh given as the arrays `reconstruct` resolves to
+/// (`positions`, `normals`: xyz per vertex; `indices`: three per triangle), for the page's PLY
+/// download. Fails on inconsistent lengths or an index out of range.
+#[wasm_bindgen]
+pub fn mesh_to_ply(positions: &[f32], normals: &[f32], indices: &[u32], comment: &str) -> Result<Vec<u8>, JsError> {
+    if positions.len() % 3 != 0 || normals.len() != positions.len() {
+        return Err(JsError::new("mesh_to_ply: positions and normals must both hold 3 floats per vertex"));
+    }
+    let triples = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+    let mesh = crate::mesh::Mesh { positions: triples(positions), normals: triples(normals), colors: None, indices: indices.to_vec() };
+    crate::io::mesh_out::write_ply(&mesh, comment).map_err(|e| JsError::new(&format!("mesh_to_ply: {e}")))
+}
+
 #[wasm_bindgen]
 pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Function) -> Result<JsValue, JsValue> {
     let t0 = now();
@@ -180,6 +194,7 @@ pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Func
         None => JsValue::NULL,
         Some(t) => {
             let o = Object::new();
+            set(&o, "backend", t.backend);
             set(&o, "n", t.n as f64);
             set(&o, "m", t.m as f64);
             set(&o, "stepsRun", t.steps_run as f64);
@@ -241,6 +256,10 @@ impl Options {
         }
         if let Some(l) = number(o, "lambda", f64::MIN_POSITIVE, 1e6)? {
             settings.lambda = l;
+        }
+        if let Some(v) = field(o, "krrBackend")? {
+            let b = v.as_string().ok_or_else(|| error("TypeError", "krrBackend must be a string"))?;
+            settings.krr_backend = b.parse().map_err(|e: String| error("RangeError", &e))?;
         }
         if let Some(c) = number(o, "labelClip", 0.0, 1e6)? {
             settings.label_clip = (c > 0.0).then_some(c as f32);

@@ -76,6 +76,9 @@ struct MeshDraw {
     normals: wgpu::Buffer,
     indices: wgpu::Buffer,
     index_count: u32,
+    /// Each undirected edge once, as a line list, for the wireframe.
+    edges: wgpu::Buffer,
+    edge_index_count: u32,
     center: Vec3,
     radius: f32,
 }
@@ -106,9 +109,12 @@ pub struct Viewer {
     mesh_pipeline: wgpu::RenderPipeline,
     mesh_uniform: wgpu::Buffer,
     mesh_bind_group: wgpu::BindGroup,
+    wire_pipeline: wgpu::RenderPipeline,
+    wire_bind_group: wgpu::BindGroup,
     mesh: Option<MeshDraw>,
     show_cloud: bool,
     show_mesh: bool,
+    show_wire: bool,
     drawn_points: usize,
     point_budget: usize,
 }
@@ -204,6 +210,7 @@ impl Viewer {
             entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
         });
         let (mesh_pipeline, mesh_uniform, mesh_bind_group) = mesh_pipeline(&gpu.device, format);
+        let (wire_pipeline, wire_bind_group) = wire_pipeline(&gpu.device, format, &mesh_uniform);
         let depth = depth_view(&gpu.device, width, height);
         Ok(Viewer {
             gpu,
@@ -217,11 +224,14 @@ impl Viewer {
             cloud: None,
             point_size: 2.5,
             mesh_pipeline,
+            wire_pipeline,
+            wire_bind_group,
             mesh_uniform,
             mesh_bind_group,
             mesh: None,
             show_cloud: true,
             show_mesh: true,
+            show_wire: false,
             drawn_points: 0,
             point_budget: POINT_BUDGET,
         })
@@ -335,11 +345,14 @@ impl Viewer {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
         };
         let had_content = self.cloud.is_some() || self.mesh.is_some();
+        let edges = unique_edges(indices);
         self.mesh = Some(MeshDraw {
             positions: buffer("mesh positions", bytemuck::cast_slice(positions), wgpu::BufferUsages::VERTEX),
             normals: buffer("mesh normals", bytemuck::cast_slice(normals), wgpu::BufferUsages::VERTEX),
             indices: buffer("mesh indices", bytemuck::cast_slice(indices), wgpu::BufferUsages::INDEX),
             index_count: indices.len() as u32,
+            edges: buffer("mesh edges", bytemuck::cast_slice(&edges), wgpu::BufferUsages::INDEX),
+            edge_index_count: edges.len() as u32,
             center: (lo + hi) * 0.5,
             radius: 0.5 * (hi - lo).length(),
         });
@@ -364,6 +377,11 @@ impl Viewer {
     pub fn set_visible(&mut self, cloud: bool, mesh: bool) {
         self.show_cloud = cloud;
         self.show_mesh = mesh;
+    }
+
+    /// Draws the mesh's edges on top of it (or alone, when the mesh itself is hidden).
+    pub fn set_wireframe(&mut self, on: bool) {
+        self.show_wire = on;
     }
 
     /// Frames the current content (the cloud and the mesh together).
@@ -547,6 +565,14 @@ impl Viewer {
                 pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..m.index_count, 0, 0..1);
             }
+            if let (Some(m), true) = (&self.mesh, self.show_wire) {
+                pass.set_pipeline(&self.wire_pipeline);
+                pass.set_bind_group(0, &self.wire_bind_group, &[]);
+                pass.set_vertex_buffer(0, m.positions.slice(..));
+                pass.set_vertex_buffer(1, m.normals.slice(..));
+                pass.set_index_buffer(m.edges.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..m.edge_index_count, 0, 0..1);
+            }
             if let (Some(c), true) = (&self.cloud, self.show_cloud) {
                 pass.set_pipeline(&self.pipeline);
                 pass.set_bind_group(0, &self.bind_group, &[]);
@@ -620,6 +646,76 @@ fn mesh_pipeline(
         entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
     });
     (pipeline, uniform, bind_group)
+}
+
+/// Every undirected edge of the triangles once, as pairs of vertex indices (a line list).
+fn unique_edges(indices: &[u32]) -> Vec<u32> {
+    let mut keys: Vec<u64> = indices
+        .chunks_exact(3)
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .map(|(a, b)| ((a.min(b) as u64) << 32) | a.max(b) as u64)
+        .collect();
+    keys.sort_unstable();
+    keys.dedup();
+    keys.iter().flat_map(|&k| [(k >> 32) as u32, k as u32]).collect()
+}
+
+/// The wireframe's pipeline: the mesh's vertex layout and uniform, a line list, a flat colour.
+/// The shaded mesh is drawn with a depth bias pushing it back, so its own edges pass the depth
+/// test and the hidden ones do not.
+fn wire_pipeline(
+    device: &wgpu::Device,
+    format: wgpu::TextureFormat,
+    uniform: &wgpu::Buffer,
+) -> (wgpu::RenderPipeline, wgpu::BindGroup) {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("mesh wireframe"),
+        source: wgpu::ShaderSource::Wgsl(MESH_SHADER.into()),
+    });
+    let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("mesh wireframe"),
+        layout: None,
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some("vs"),
+            compilation_options: Default::default(),
+            buffers: &[
+                Some(wgpu::VertexBufferLayout {
+                    array_stride: 12,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+                }),
+                Some(wgpu::VertexBufferLayout {
+                    array_stride: 12,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![1 => Float32x3],
+                }),
+            ],
+        },
+        fragment: Some(wgpu::FragmentState {
+            module: &module,
+            entry_point: Some("fs_wire"),
+            compilation_options: Default::default(),
+            targets: &[Some(format.into())],
+        }),
+        primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::LineList, ..Default::default() },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH,
+            depth_write_enabled: Some(false),
+            depth_compare: Some(wgpu::CompareFunction::LessEqual),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: Default::default(),
+        multiview_mask: None,
+        cache: None,
+    });
+    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("mesh wireframe view"),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
+    });
+    (pipeline, bind_group)
 }
 
 fn depth_view(device: &wgpu::Device, width: u32, height: u32) -> wgpu::TextureView {

@@ -164,6 +164,15 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     await page.uncheck('#show-cloud');
     const meshCoverage = await page.evaluate(() => window.nkrrViewer.coverage());
     assert.ok(meshCoverage > 0.02 && meshCoverage < 0.95, `mesh coverage ${meshCoverage}`);
+    // The wireframe alone (mesh hidden) draws the edges; nothing at all is drawn without it.
+    await page.uncheck('#show-mesh');
+    assert.equal(await page.evaluate(() => window.nkrrViewer.coverage()), 0);
+    await page.check('#show-wire');
+    const wireCoverage = await page.evaluate(() => window.nkrrViewer.coverage());
+    assert.ok(wireCoverage > 0.01 && wireCoverage <= meshCoverage + 0.01, `wireframe coverage ${wireCoverage} (mesh ${meshCoverage})`);
+    await page.check('#show-mesh');
+    await page.screenshot({ path: path.join(ARTIFACTS, 'reconstruct-spot-3k-wireframe.png') });
+    await page.uncheck('#show-wire');
     await page.check('#show-cloud');
 
     const [download] = await Promise.all([page.waitForEvent('download'), page.click('#download')]);
@@ -178,6 +187,18 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     const w = watertight(glb.indices, glb.vertices);
     assert.equal(w.bad, 0, `${w.bad} of ${w.edges} directed edges lack a unique reverse`);
     assert.equal(glb.indices.length / 3, Number(stats.triangles.replace(/,/g, '')));
+
+    // The optional PLY download: the same mesh, binary, with its faces.
+    const [plyDl] = await Promise.all([page.waitForEvent('download'), page.click('#download-ply')]);
+    assert.equal(plyDl.suggestedFilename(), 'spot-3k.ply');
+    const plyFile = path.join(ARTIFACTS, 'spot-3k-mesh.ply');
+    await plyDl.saveAs(plyFile);
+    const plyBytes = fs.readFileSync(plyFile);
+    const head = plyBytes.subarray(0, plyBytes.indexOf('end_header\n') + 11).toString('latin1');
+    assert.match(head, /^ply\nformat binary_little_endian 1\.0\n/);
+    assert.equal(Number(head.match(/element vertex (\d+)/)[1]), glb.vertices);
+    assert.equal(Number(head.match(/element face (\d+)/)[1]), glb.indices.length / 3);
+    assert.equal(plyBytes.length, head.length + glb.vertices * 24 + (glb.indices.length / 3) * 13);
 
     const cloud = plyBounds(fs.readFileSync(SCAN));
     for (let a = 0; a < 3; a++) {
@@ -330,6 +351,51 @@ test('the embedding example reconstructs through the ES module (web/reconstructo
     assert.equal(stats.resolution, 64);
     assert.ok(stats.triangles > 1000);
     assert.equal(await page.getAttribute('#save', 'download'), 'spot-3k.glb');
+    assert.deepEqual(errors, []);
+  } finally {
+    await b.close();
+  }
+});
+
+test('nkrr with its objective on the GPU (forced on this software adapter) runs through the ES module API', { timeout: RUN_TIMEOUT + 120_000 }, async () => {
+  const b = await browser();
+  try {
+    const { page, errors } = await newPage(b, srv.url);
+    await page.waitForFunction(() => document.body.dataset.state === 'ready', null, { timeout: 90_000 });
+    // The page's default is nkrr; on a software adapter (SwiftShader here) it falls back to the
+    // network alone, and says why when nkrr is picked.
+    assert.equal(await page.$eval('#method option[selected]', (o) => o.value), 'nkrr');
+    assert.equal(await page.evaluate(() => document.body.dataset.software), 'true');
+    assert.equal(await page.inputValue('#method'), 'network');
+    assert.equal(await page.isVisible('#nkrr-note'), false);
+    await page.selectOption('#method', 'nkrr');
+    assert.equal(await page.isVisible('#nkrr-note'), true);
+
+    const stats = await page.evaluate(async () => {
+      const bytes = await (await fetch('/data/spot-3k.ply')).arrayBuffer();
+      const seen = new Set();
+      const out = await window.nkrrReconstructor.reconstruct(bytes,
+        { method: 'nkrr', m: 40, steps: 4, krrBackend: 'gpu', resolution: 32 },
+        { onProgress: (p) => seen.add(p.stage) });
+      return { ...out.stats, stages: [...seen] };
+    });
+    console.log(`GPU objective in the browser: ${JSON.stringify(stats.tuning)}`);
+    assert.equal(stats.tuning.backend, 'gpu');
+    assert.equal(stats.tuning.m, 40);
+    assert.ok(stats.tuning.stepsRun >= 1);
+    assert.ok(Number.isFinite(stats.tuning.finalLoss) && stats.tuning.finalLoss < stats.tuning.initialLoss,
+      `the tuning should lower the objective: ${stats.tuning.initialLoss} -> ${stats.tuning.finalLoss}`);
+    assert.ok(stats.stages.includes('tuning'));
+    assert.equal(stats.watertight, true);
+    assert.ok(stats.triangles > 500);
+    // A bad backend name is a clear error, not a silent default.
+    const err = await page.evaluate(async () => {
+      try {
+        await window.nkrrReconstructor.reconstruct(new Uint8Array([1, 2, 3]), { krrBackend: 'tpu' });
+        return null;
+      } catch (e) { return `${e.name}: ${e.message}`; }
+    });
+    assert.match(err ?? '', /RangeError: .*tpu/);
     assert.deepEqual(errors, []);
   } finally {
     await b.close();
