@@ -2,9 +2,15 @@
 
 /// A cloud as read from a file: positions in the user's coordinates, plus optional per-point
 /// attributes (same length as `positions` when present).
+///
+/// Positions are `f32` relative to `origin` (`f64`): a point's user coordinates are
+/// `origin + position`. Readers put far-off (e.g. georeferenced) clouds' offset there, so that
+/// the `f32` positions keep their precision; it is zero otherwise.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PointCloud {
     pub positions: Vec<[f32; 3]>,
+    /// Added to every position (and to the reconstructed mesh's) to give user coordinates.
+    pub origin: [f64; 3],
     pub normals: Option<Vec<[f32; 3]>>,
     /// RGBA in 0..=255.
     pub colors: Option<Vec<[u8; 4]>>,
@@ -41,7 +47,7 @@ impl PointCloud {
     pub fn is_empty(&self) -> bool {
         self.positions.is_empty()
     }
-    /// Bounds of the positions, or `None` for an empty cloud.
+    /// Bounds of the positions (relative to `origin`), or `None` for an empty cloud.
     pub fn bounds(&self) -> Option<Bounds> {
         let first = *self.positions.first()?;
         let mut b = Bounds { min: first, max: first };
@@ -77,9 +83,22 @@ impl std::fmt::Display for CloudError {
 
 impl std::error::Error for CloudError {}
 
-/// The similarity that maps the user's coordinates to the network's unit cube (bounding-box
-/// centre at the origin, longest side 1) and back. Kept in f64 so large georeferenced offsets
-/// survive the round trip.
+/// Coordinates at least this large (in magnitude) are read relative to an origin (see
+/// [`origin_for`]): beyond it an `f32` keeps less than about 1e-3 of absolute precision.
+pub const FAR_COORDINATE: f64 = 1e4;
+
+/// The origin a reader should subtract from `f64` coordinates before storing them as `f32`,
+/// chosen from the cloud's first point `first`: per axis, that coordinate rounded to a whole
+/// unit when its magnitude is at least [`FAR_COORDINATE`] (and below 1e15, beyond which it is
+/// taken for garbage rather than a place), else 0, so that ordinary clouds keep their
+/// coordinates as they are. Points near the first then keep `f32` precision relative to the
+/// cloud's size, wherever it lies.
+pub fn origin_for(first: [f64; 3]) -> [f64; 3] {
+    first.map(|c| if (FAR_COORDINATE..1e15).contains(&c.abs()) { c.round() } else { 0.0 })
+}
+
+/// The similarity that maps a cloud's positions (relative to its `origin`) to the network's
+/// unit cube (bounding-box centre at 0, longest side 1) and back, in f64.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Normalization {
     pub center: [f64; 3],

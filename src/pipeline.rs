@@ -9,7 +9,7 @@ use std::fmt;
 use crate::cloud::{subsample, CloudError, Normalization, PointCloud};
 use crate::gpu::{Gpu, GpuError};
 use crate::krr::{self, KrrError, LengthScaleInit, Objective, TuneSettings};
-use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, ExtractStats, FieldError, Mesh};
+use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, ExtractStats, FieldError, Mesh, TrimReport};
 use crate::net::{GpuNet, NetError, Weights};
 
 /// Which field the surface is the level set of.
@@ -66,6 +66,14 @@ pub struct Settings {
     pub euclidean: bool,
     /// Where the regression's objective runs.
     pub krr_backend: KrrBackend,
+    /// Open the surface where there is no data: drop triangles whose centroid is farther than
+    /// `trim` × the input's mean nearest-neighbour spacing from every input point (measured on
+    /// the points the network sees; see [`crate::mesh::trim`]). None (the default) keeps the
+    /// mesh watertight.
+    pub trim: Option<f32>,
+    /// Colour the mesh's vertices from the cloud's colours, when it has them (see
+    /// [`crate::mesh::colour::transfer`]).
+    pub colors: bool,
 }
 
 /// Where the kernel regression's objective and gradient are computed.
@@ -107,6 +115,8 @@ impl Default for Settings {
             label_clip: Some(4.0),
             euclidean: false,
             krr_backend: KrrBackend::Auto,
+            trim: None,
+            colors: true,
         }
     }
 }
@@ -156,16 +166,35 @@ impl From<GpuError> for PipelineError {
     }
 }
 
-/// The result: the mesh in the user's coordinates, what happened, and how long each stage took.
+/// The result: the mesh, what happened, and how long each stage took.
 #[derive(Clone, Debug)]
 pub struct Reconstruction {
+    /// In the cloud's coordinates: user coordinates are `origin + position`.
     pub mesh: Mesh,
+    /// The cloud's [`PointCloud::origin`]: zero unless the reader moved a far-off cloud near 0.
+    pub origin: [f64; 3],
+    /// What trimming removed, when [`Settings::trim`] asked for it (its spacing and threshold
+    /// are in the network's unit cube: times the cloud's longest side for the cloud's units).
+    pub trim: Option<TrimReport>,
     pub notices: Vec<String>,
     pub extract: ExtractStats,
     /// What the test-time tuning did (nkrr only).
     pub tuning: Option<TuningSummary>,
     /// (stage, seconds).
     pub timings: Vec<(&'static str, f64)>,
+}
+
+impl Reconstruction {
+    /// The origin as a glTF root translation ([`crate::io::gltf::GlbOptions::translation`]),
+    /// or None when it is zero.
+    pub fn translation(&self) -> Option<[f64; 3]> {
+        (self.origin != [0.0; 3]).then_some(self.origin)
+    }
+
+    /// The mesh's vertex positions in user coordinates, in f64.
+    pub fn positions_f64(&self) -> Vec<[f64; 3]> {
+        self.mesh.positions.iter().map(|p| [0, 1, 2].map(|a| p[a] as f64 + self.origin[a])).collect()
+    }
 }
 
 /// What the kernel regression's tuning did, for reports and benchmarks.
@@ -348,11 +377,27 @@ impl Engine {
         timings.push(("mesh", now() - t));
 
         let mut mesh = extraction.mesh;
+        // Trimmed in the unit cube, against the points the network saw.
+        let trim = settings.trim.map(|factor| {
+            let t = now();
+            let r = crate::mesh::trim(&mut mesh, &points, factor);
+            timings.push(("trim", now() - t));
+            notices.push(format!(
+                "trimmed {} triangles farther than {factor} x the mean point spacing from the input",
+                r.triangles_removed
+            ));
+            r
+        });
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }
+        if settings.colors && cloud.colors.is_some() {
+            let t = now();
+            crate::mesh::colour::transfer(&mut mesh, cloud, crate::mesh::colour::DEFAULT_K);
+            timings.push(("colours", now() - t));
+        }
         (progress.borrow_mut())(&Stage::Done);
-        Ok(Reconstruction { mesh, notices, extract: extraction.stats, tuning, timings })
+        Ok(Reconstruction { mesh, origin: cloud.origin, trim, notices, extract: extraction.stats, tuning, timings })
     }
 
     /// X = F([P, P~]), y = [0, l(P~)] (paper eq. 6): the input points lie on the surface

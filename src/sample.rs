@@ -63,6 +63,69 @@ pub fn upsample(points: &[[f32; 3]], k: usize, seed: u64) -> Vec<[f32; 3]> {
         .collect()
 }
 
+/// Exact k-nearest-neighbour queries against a fixed set of points (the same grid search as
+/// [`kth_neighbour_distance`]); queries may lie anywhere, inside the points' bounds or not.
+pub struct PointIndex<'a> {
+    points: &'a [[f32; 3]],
+    grid: Grid,
+}
+
+impl<'a> PointIndex<'a> {
+    /// Indexes `points` (finite; may be empty, then every query finds nothing).
+    pub fn new(points: &'a [[f32; 3]]) -> PointIndex<'a> {
+        PointIndex { points, grid: Grid::new(points) }
+    }
+
+    /// The `k` points nearest to `q` as (squared distance, index), nearest first (ties in any
+    /// order), in `out` (cleared first). Fewer when there are fewer than `k` points.
+    pub fn k_nearest(&self, q: [f32; 3], k: usize, out: &mut Vec<(f32, u32)>) {
+        out.clear();
+        let k = k.min(self.points.len());
+        if k == 0 {
+            return;
+        }
+        let c = self.grid.cell_of(&q);
+        let mut ring = 0i64;
+        loop {
+            self.grid.for_ring(c, ring, |j| {
+                let p = self.points[j as usize];
+                let d2 = (0..3).map(|a| (p[a] - q[a]) * (p[a] - q[a])).sum::<f32>();
+                if out.len() < k || d2 < out[k - 1].0 {
+                    let at = out.partition_point(|&(b, _)| b <= d2);
+                    out.insert(at, (d2, j));
+                    out.truncate(k);
+                }
+            });
+            // Cells beyond this ring are at least `ring * h` from q (also when q lies outside
+            // the grid and its cell was clamped: it is then farther still).
+            let reach = ring as f32 * self.grid.h;
+            if (out.len() == k && out[k - 1].0 <= reach * reach) || ring > self.grid.max_ring() {
+                break;
+            }
+            ring += 1;
+        }
+    }
+
+    /// Distance from `q` to the nearest point (infinite when there are none).
+    pub fn nearest_distance(&self, q: [f32; 3], scratch: &mut Vec<(f32, u32)>) -> f32 {
+        self.k_nearest(q, 1, scratch);
+        scratch.first().map_or(f32::INFINITY, |&(d2, _)| d2.sqrt())
+    }
+}
+
+/// Mean distance from each point to its nearest other point, over the points that have one at
+/// a non-zero distance (exact duplicates would otherwise pull the spacing towards zero); 0 when
+/// there is none.
+pub fn mean_spacing(points: &[[f32; 3]]) -> f32 {
+    let d = kth_neighbour_distance(points, 1);
+    let (sum, n) = d.iter().filter(|&&x| x > 0.0).fold((0.0f64, 0usize), |(s, n), &x| (s + x as f64, n + 1));
+    if n == 0 {
+        0.0
+    } else {
+        (sum / n as f64) as f32
+    }
+}
+
 /// Points bucketed in a uniform grid (counting sort into CSR order).
 struct Grid {
     min: [f32; 3],
@@ -187,6 +250,36 @@ mod tests {
         pts.extend(sphere_cloud(300, 7).iter().map(|p| [p[0] * 0.01 + 5.0, p[1] * 0.01, p[2]]));
         pts.extend(vec![[1.0, 1.0, 1.0]; 20]);
         assert_eq!(kth_neighbour_distance(&pts, 30), brute(&pts, 30));
+    }
+
+    #[test]
+    fn point_index_matches_brute_force_inside_and_outside_the_bounds() {
+        let pts = sphere_cloud(3000, 11);
+        let index = PointIndex::new(&pts);
+        let mut r = SplitMix64(12);
+        let mut got = Vec::new();
+        for q in 0..300 {
+            // Half near the sphere, half anywhere in a box three times its size.
+            let s = if q % 2 == 0 { 0.5 } else { 1.5 };
+            let p = [0, 1, 2].map(|_| (s * (2.0 * r.unit() - 1.0)) as f32);
+            for k in [1, 8, 40] {
+                index.k_nearest(p, k, &mut got);
+                let mut d: Vec<f32> =
+                    pts.iter().map(|x| (0..3).map(|a| (p[a] - x[a]) * (p[a] - x[a])).sum::<f32>()).collect();
+                d.sort_by(f32::total_cmp);
+                let got_d: Vec<f32> = got.iter().map(|&(d2, _)| d2).collect();
+                assert_eq!(got_d, d[..k], "q={p:?} k={k}");
+                for &(d2, j) in &got {
+                    let x = pts[j as usize];
+                    assert_eq!(d2, (0..3).map(|a| (p[a] - x[a]) * (p[a] - x[a])).sum::<f32>());
+                }
+            }
+        }
+        index.k_nearest([0.0; 3], 5000, &mut got);
+        assert_eq!(got.len(), 3000);
+        let empty: Vec<[f32; 3]> = Vec::new();
+        assert_eq!(PointIndex::new(&empty).nearest_distance([0.0; 3], &mut got), f32::INFINITY);
+        assert_eq!(mean_spacing(&[[0.0; 3], [0.0; 3], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0]]), (1.0 + 2.0) / 2.0);
     }
 
     #[test]

@@ -374,11 +374,15 @@ fn extreme_integer_and_double_coordinates() {
             ],
         };
         let r = ok(&write_ply(fmt, &[e], &Style::default()));
+        // Far-off int/double coordinates are stored relative to the first point's, rounded
+        // (nkrr::cloud::origin_for): x and y here; z's first value is small, so it stays put.
+        let o = [i32::MIN as f64, u32::MAX as f64, 0.0];
+        assert_eq!(r.cloud.origin, o, "{fmt:?}");
         assert_eq!(
             r.cloud.positions,
             vec![
-                [i32::MIN as f32, u32::MAX as f32, 1.0e-300f64 as f32],
-                [i32::MAX as f32, 0.0, -123456.789f64 as f32]
+                [0.0, 0.0, 1.0e-300f64 as f32],
+                [(i32::MAX as f64 - o[0]) as f32, (0.0 - o[1]) as f32, -123456.789f64 as f32]
             ],
             "{fmt:?}"
         );
@@ -1538,7 +1542,15 @@ proptest! {
         let bytes = case_bytes(&c);
         let n = c.vrows.len();
         let (x, y, z) = (column(&c, "x").unwrap(), column(&c, "y").unwrap(), column(&c, "z").unwrap());
-        let want: Vec<[f32; 3]> = (0..n).map(|i| [x[i] as f32, y[i] as f32, z[i] as f32]).collect();
+        // int, uint and double coordinates far from 0 are stored relative to an origin taken
+        // from the first point (nkrr::cloud::origin_for; generated points are all finite, so
+        // it is the first row's).
+        let wide = c.vprops.iter().any(|(name, k)| {
+            name == "x" && matches!(k, ExtraKind::S(ScalarType::F64 | ScalarType::I32 | ScalarType::U32))
+        });
+        let origin = if wide { nkrr::cloud::origin_for([x[0], y[0], z[0]]) } else { [0.0; 3] };
+        let want: Vec<[f32; 3]> =
+            (0..n).map(|i| [(x[i] - origin[0]) as f32, (y[i] - origin[1]) as f32, (z[i] - origin[2]) as f32]).collect();
         // Generated coordinates are finite; only doubles beyond the f32 range become infinite.
         let keep: Vec<bool> = want.iter().map(|p| p.iter().all(|v| v.is_finite())).collect();
         let kept: Vec<[f32; 3]> = want.iter().zip(&keep).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
@@ -1547,6 +1559,7 @@ proptest! {
             return Ok(());
         }
         let r = read_ply(&bytes).map_err(|e| TestCaseError::fail(format!("{e}")))?;
+        prop_assert_eq!(r.cloud.origin, origin);
         prop_assert_eq!(&r.cloud.positions, &kept);
         prop_assert_eq!(r.info.dropped_non_finite, n - kept.len());
         prop_assert_eq!(r.info.vertex_count, n as u64);

@@ -10,7 +10,8 @@
 //   // watertight, timings [{ stage, seconds }], notices, tuning, …
 //
 // Options (all optional; defaults are the paper's): method ('network' | 'nkrr'), m, steps,
-// resolution (16–1024), removeSmall (0–1, 0 keeps every piece), maxPoints, lambda, labelClip, name.
+// resolution (16–1024), removeSmall (0–1, 0 keeps every piece), maxPoints, lambda, labelClip, name,
+// trim (factor of the mean point spacing; 0 or absent keeps the mesh watertight).
 // Progress: onProgress({ stage: 'setup' | 'features' | 'pairs' | 'tuning' | 'meshing' | 'done',
 // step, of, loss, evaluated }). Aborting the signal rejects at once with an AbortError; the
 // worker stops at its next step, or is replaced if it has not within `graceMs` (CPU-bound steps

@@ -12,6 +12,10 @@ USAGE:
         --method nkrr|network      field to mesh (network: the prior alone)  [nkrr]
         --resolution N             marching-cubes resolution (16..=1024)     [128]
         --remove-small F           drop components below F x the largest's triangle count
+        --trim [F]                 open the surface where there are no points: drop triangles
+                                   farther than F x the mean point spacing from them  [3]
+        --no-colors                leave the mesh uncoloured (default: vertex colours from a
+                                   coloured cloud, written as COLOR_0)
         --max-points N             subsample larger clouds for the encoder   [100000]
         --m N                      inducing points of the KRR                [500]
         --steps N                  Adam steps of the test-time tuning        [100]
@@ -80,7 +84,15 @@ fn info(path: &str) -> Result<(), Failure> {
     println!("points:     {} (declared {})", cloud.len(), parsed.info.vertex_count);
     if let Some(b) = cloud.bounds() {
         let e = b.extent();
-        println!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]);
+        if cloud.origin != [0.0; 3] {
+            let o = cloud.origin;
+            println!("origin:     [{}, {}, {}] (far-off coordinates: positions are stored relative to it)", o[0], o[1], o[2]);
+            let (lo, hi) = (b.min.map(f64::from), b.max.map(f64::from));
+            let (lo, hi) = ([0, 1, 2].map(|a| lo[a] + o[a]), [0, 1, 2].map(|a| hi[a] + o[a]));
+            println!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
+        } else {
+            println!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]);
+        }
         println!("extent:     {} x {} x {}", e[0], e[1], e[2]);
     }
     let props: Vec<String> =
@@ -151,6 +163,21 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             "--no-z" => settings.tune_z = false,
             "--euclidean" => settings.euclidean = true,
             "--krr-backend" => settings.krr_backend = value(a)?.parse().map_err(|e: String| usage(&e))?,
+            "--no-colors" => settings.colors = false,
+            "--trim" => {
+                // The factor is optional: take the next argument only when it is a number.
+                let f = match it.as_slice().first().and_then(|s| s.parse::<f32>().ok()) {
+                    Some(f) => {
+                        it.next();
+                        f
+                    }
+                    None => nkrr::mesh::trim::DEFAULT_TRIM,
+                };
+                if !(f > 0.0 && f.is_finite()) {
+                    return Err(usage("--trim must be > 0"));
+                }
+                settings.trim = Some(f);
+            }
             s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
             s if input.is_none() => input = Some(s.to_string()),
             s => return Err(usage(&format!("unexpected argument '{s}'"))),
@@ -202,7 +229,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         eprintln!("notice: {n}");
     }
     let name = std::path::Path::new(&input).file_stem().map(|s| s.to_string_lossy().into_owned());
-    let (glb, glb_report) = nkrr::io::gltf::write_glb_with_report(&rec.mesh, &nkrr::io::gltf::GlbOptions { name, ..Default::default() })
+    let (glb, glb_report) = nkrr::io::gltf::write_glb_with_report(&rec.mesh, &nkrr::io::gltf::GlbOptions { name, translation: rec.translation() })
         .map_err(|e| fail(format!("writing {output}: {e}")))?;
     std::fs::write(&output, &glb).map_err(|e| fail(format!("cannot write {output}: {e}")))?;
     let times: Vec<String> = rec.timings.iter().map(|(s, t)| format!("{s} {t:.2}s")).collect();

@@ -8,6 +8,9 @@
 //!   the PLY specification; scanners and tools write all of them.
 //! - Vertex `x`/`y`/`z` of any of the eight numeric types (names and `int8`-style aliases):
 //!   quantised scans store positions as integers, and we would rather convert than refuse.
+//!   Positions are stored as `f32`; when x/y/z are `double`, `int` or `uint` and the first point
+//!   lies far from 0 (georeferenced scans), they are stored relative to
+//!   [`PointCloud::origin`] (see [`crate::cloud::origin_for`]), which keeps the offset in `f64`.
 //! - Optional `nx`/`ny`/`nz` (read by value, whatever their type) and `red`/`green`/`blue`
 //!   (`alpha` optional; `diffuse_red` etc. as aliases). Colour conversion to 0..=255:
 //!   floats are taken as 0..1; 8-bit integers as 0..255; 16-bit integers as 0..65535 (divided by
@@ -1103,12 +1106,25 @@ struct Out {
     normals: Vec<[f32; 3]>,
     colors: Vec<[u8; 4]>,
     dropped: usize,
+    /// Subtracted from every position (see `cloud::origin_for`); decided at the first finite
+    /// vertex, and only when a coordinate's type holds more than an `f32` can (`wide`).
+    origin: Option<[f64; 3]>,
+    wide: bool,
 }
 
 impl Out {
     #[inline(always)]
     fn push(&mut self, v: &[f64; NSLOTS], p: &VertexPlan) {
-        let pos = [v[X] as f32, v[X + 1] as f32, v[X + 2] as f32];
+        let o = match self.origin {
+            Some(o) => o,
+            None if self.wide && v[X..X + 3].iter().all(|c| c.is_finite()) => {
+                let o = crate::cloud::origin_for([v[X], v[X + 1], v[X + 2]]);
+                self.origin = Some(o);
+                o
+            }
+            None => [0.0; 3],
+        };
+        let pos = [(v[X] - o[0]) as f32, (v[X + 1] - o[1]) as f32, (v[X + 2] - o[2]) as f32];
         if !pos.iter().all(|c| c.is_finite()) {
             self.dropped += 1;
             return;
@@ -1153,6 +1169,9 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
             Vec::new()
         },
         dropped: 0,
+        origin: None,
+        // Types whose values an f32 may not hold exactly; `float` coordinates are read as-is.
+        wide: p.types[X..X + 3].iter().any(|t| matches!(t, ScalarType::F64 | ScalarType::I32 | ScalarType::U32)),
     };
     let mut v = [0f64; NSLOTS];
     let fixed = fixed_size(e).filter(|&size| size > 0);
@@ -1198,6 +1217,7 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
         positions: out.positions,
         normals: p.has_normals.then_some(out.normals),
         colors: p.has_colors.then_some(out.colors),
+        origin: out.origin.unwrap_or([0.0; 3]),
     };
     Ok((cloud, out.dropped))
 }

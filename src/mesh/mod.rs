@@ -2,12 +2,14 @@
 //! implicit field: coarse-to-fine marching cubes on the CPU ([`marching_cubes`]) or the GPU
 //! ([`marching_cubes_gpu`]); see [`extract`] for the entry points and [`refine`] for the search.
 
+pub mod colour;
 pub mod components;
 pub mod extract;
 pub mod marching_cubes;
 pub mod marching_cubes_gpu;
 pub mod refine;
 pub mod tables;
+pub mod trim;
 
 pub use components::{remove_small_components, triangle_components, Removal};
 #[cfg(not(target_arch = "wasm32"))]
@@ -15,6 +17,7 @@ pub use extract::extract_gpu;
 pub use extract::{extract, extract_async, extract_gpu_async, postprocess, refine_async, ExtractStats, Extraction};
 pub use marching_cubes::polygonize;
 pub use marching_cubes_gpu::{polygonize_gpu, MarchingCubesGpu};
+pub use trim::{retain_triangles, trim, TrimReport};
 pub use refine::{ActiveCells, ExtractError, ExtractOptions, Field, FieldError, Plan, RefineStats, Refiner};
 
 use crate::cloud::Bounds;

@@ -146,12 +146,13 @@ pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Func
     let rec = result.map_err(pipeline_error)?;
 
     let t = now();
+    let translation = rec.translation();
     let mut mesh = rec.mesh;
     if mesh.normals.len() != mesh.positions.len() {
         mesh.compute_vertex_normals();
     }
     let watertight = mesh.is_watertight();
-    let (glb, report) = gltf::write_glb_with_report(&mesh, &gltf::GlbOptions { name: opts.name.clone(), ..Default::default() })
+    let (glb, report) = gltf::write_glb_with_report(&mesh, &gltf::GlbOptions { name: opts.name.clone(), translation })
         .map_err(|e| error("GltfError", &format!("the mesh could not be written as glTF: {e}")))?;
     let t_glb = now() - t;
 
@@ -253,6 +254,9 @@ impl Options {
         }
         if let Some(f) = number(o, "removeSmall", 0.0, 1.0)? {
             settings.remove_small_components = (f > 0.0).then_some(f as f32);
+        }
+        if let Some(f) = number(o, "trim", 0.0, 1e3)? {
+            settings.trim = (f > 0.0).then_some(f as f32);
         }
         if let Some(l) = number(o, "lambda", f64::MIN_POSITIVE, 1e6)? {
             settings.lambda = l;
