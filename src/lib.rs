@@ -2,9 +2,11 @@
 //!
 //! Data flows one way through one module per stage (see `docs/architecture.md`):
 //! `io::ply` → `cloud` → `net` → `sample` → `krr` → `field` → `mesh` → `io::gltf`.
+//! [`eval`] measures a reconstruction against a ground-truth mesh (the paper's protocol).
 //! The same code builds natively (tests, the `nkrr` CLI) and for `wasm32-unknown-unknown`.
 
 pub mod cloud;
+pub mod eval;
 pub mod gpu;
 pub mod io;
 pub mod krr;

@@ -68,3 +68,108 @@ fn info_on_missing_file_and_bad_usage() {
     let (code, _, _) = nkrr(&["info"]);
     assert_eq!(code, 2);
 }
+
+/// The closed box [lo, hi] as OBJ text (12 triangles), optionally without its last triangle.
+fn box_obj(lo: [f64; 3], hi: [f64; 3], open: bool) -> String {
+    let mut s = String::new();
+    for i in 0..8 {
+        let p = [0, 1, 2].map(|a| if (i >> a) & 1 == 1 { hi[a] } else { lo[a] });
+        s += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+    }
+    let quads = [[1, 3, 4, 2], [5, 6, 8, 7], [1, 2, 6, 5], [3, 7, 8, 4], [1, 5, 7, 3], [2, 4, 8, 6]];
+    for (k, q) in quads.iter().enumerate() {
+        if open && k == 5 {
+            s += &format!("f {} {} {}\n", q[0], q[1], q[2]);
+        } else {
+            s += &format!("f {} {} {} {}\n", q[0], q[1], q[2], q[3]); // a quad: fan-triangulated
+        }
+    }
+    s
+}
+
+/// A number from one `"key": value` of a JSON line.
+fn field(line: &str, key: &str) -> String {
+    let at = line.find(&format!("\"{key}\": ")).unwrap_or_else(|| panic!("no {key} in {line}")) + key.len() + 4;
+    line[at..].split([',', '}']).next().unwrap().trim().to_string()
+}
+
+#[test]
+fn metrics_prints_one_json_line_per_reconstruction() {
+    let gt = temp_file("box.obj", box_obj([0.0; 3], [1.0; 3], false).as_bytes());
+    let same = temp_file("box-same.obj", box_obj([0.0; 3], [1.0; 3], false).as_bytes());
+    // The reconstruction as GLB: the box moved by 5 % along x (IoU 0.95 / 1.05).
+    let shifted = nkrr::io::obj::read_obj(box_obj([0.05, 0.0, 0.0], [1.05, 1.0, 1.0], false).as_bytes()).unwrap();
+    let glb = temp_file("box-shifted.glb", &nkrr::io::gltf::write_glb(&shifted, &Default::default()).unwrap());
+    let (code, out, err) = nkrr(&["metrics", &gt, &same, &glb]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines.len(), 2, "{out}");
+    assert!(lines[0].starts_with('{') && lines[0].ends_with('}'), "{out}");
+    assert_eq!(field(lines[0], "iou"), "1.0000");
+    assert_eq!(field(lines[0], "watertight"), "true");
+    assert!(field(lines[0], "fscore").parse::<f64>().unwrap() > 0.99, "{out}");
+    assert!(field(lines[0], "cd1x100").parse::<f64>().unwrap() < 0.5, "{out}");
+    let iou: f64 = field(lines[1], "iou").parse().unwrap();
+    assert!((iou - 0.95 / 1.05).abs() < 0.006, "{out}");
+    assert!(field(lines[1], "recon").contains("box-shifted.glb"), "{out}");
+    assert_eq!(field(lines[1], "faces"), "12");
+    for key in ["cd1x100", "fscore", "nc", "iou", "watertight"] {
+        field(lines[1], key);
+    }
+    // An open ground truth: no IoU.
+    let open = temp_file("box-open.obj", box_obj([0.0; 3], [1.0; 3], true).as_bytes());
+    let (code, out, err) = nkrr(&["metrics", &open, &same]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(field(&out, "iou"), "null");
+    assert_eq!(field(&out, "gt_watertight"), "false");
+}
+
+#[test]
+fn metrics_and_eval_usage_errors() {
+    let gt = temp_file("box2.obj", box_obj([0.0; 3], [1.0; 3], false).as_bytes());
+    let bad = temp_file("bad.obj", b"v 0 0 0\nf 1 2 3\n");
+    for args in [&["metrics"][..], &["metrics", &gt], &["metrics", &gt, "--frob", &gt], &["metrics", &gt, "x.stl"]] {
+        let (code, _, err) = nkrr(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains("USAGE"), "{err}");
+    }
+    let (code, _, err) = nkrr(&["metrics", &gt, "/nonexistent/r.glb"]);
+    assert_eq!(code, 1);
+    assert!(err.contains("cannot read /nonexistent/r.glb"), "{err}");
+    let (code, _, err) = nkrr(&["metrics", &bad, &gt]);
+    assert_eq!(code, 1);
+    assert!(err.contains("bad.obj: line 2") && err.contains("out of range"), "{err}");
+
+    let dir = eval("");
+    for args in [&["eval"][..], &["eval", &dir, "--methods", "nkrr,bogus"], &["eval", &dir, "--method", "nkrr"], &["eval", &dir, "--resolution", "8"], &["eval", &dir, "extra"]] {
+        let (code, _, err) = nkrr(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+    }
+    let (code, _, err) = nkrr(&["eval", "/nonexistent/dir"]);
+    assert_eq!(code, 1);
+    assert!(err.contains("cannot read directory"), "{err}");
+    let (code, _, err) = nkrr(&["eval", &dir, "--sizes", "7k"]);
+    assert_eq!(code, 1);
+    assert!(err.contains("no NAME.obj with a NAME-SIZE.ply"), "{err}");
+}
+
+/// One real run of `eval` (network prior only, coarse grid): the report files and their shape.
+#[test]
+fn eval_writes_markdown_and_json() {
+    let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("cli").join("eval-small");
+    std::fs::create_dir_all(out.parent().unwrap()).unwrap();
+    let out = out.to_string_lossy().into_owned();
+    let (code, stdout, err) =
+        nkrr(&["eval", &eval(""), "--shapes", "cow", "--sizes", "3k", "--methods", "network", "--resolution", "32", "--out", &out]);
+    assert_eq!(code, 0, "{err}");
+    assert!(stdout.contains("1 runs"), "{stdout}");
+    let md = std::fs::read_to_string(format!("{out}.md")).unwrap();
+    assert!(md.contains("## 3k points") && md.contains("| cow | network |") && md.contains("| **mean** | network |"), "{md}");
+    let json = std::fs::read_to_string(format!("{out}.json")).unwrap();
+    assert!(json.contains("\"shape\": \"cow\"") && json.contains("\"method\": \"network\""), "{json}");
+    let iou: f64 = field(&json, "iou").parse().unwrap();
+    assert!(iou > 0.5, "{json}"); // cow is watertight; even a 32³ grid gets most of it
+    for key in ["cd1x100", "fscore", "nc", "features", "mesh", "total", "metrics"] {
+        field(&json, key);
+    }
+}
