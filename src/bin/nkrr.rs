@@ -7,8 +7,8 @@ nkrr — surface reconstruction from raw point clouds
 
 USAGE:
     nkrr info CLOUD.ply     point count, bounds, properties found, warnings
-    nkrr reconstruct CLOUD.ply -o OUT.glb [OPTIONS]
-                            a watertight mesh of the cloud, as glTF binary
+    nkrr reconstruct CLOUD.ply -o OUT.glb|.ply|.obj|.stl [OPTIONS]
+                            a watertight mesh of the cloud; the extension picks the format
         --method nkrr|network      field to mesh (network: the prior alone)  [nkrr]
         --resolution N             marching-cubes resolution (16..=1024)     [128]
         --remove-small F           drop components below F x the largest's triangle count
@@ -147,9 +147,9 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     }
     let input = input.ok_or_else(|| usage("reconstruct needs an input PLY"))?;
     let output = output.ok_or_else(|| usage("reconstruct needs -o OUT.glb"))?;
-    if !output.to_ascii_lowercase().ends_with(".glb") {
-        return Err(usage("only .glb output is supported so far"));
-    }
+    use nkrr::io::mesh_out::{self, MeshFormat};
+    let format = MeshFormat::from_path(&output)
+        .ok_or_else(|| usage(&format!("-o {output}: the extension must be .glb, .ply, .obj or .stl")))?;
 
     let t0 = nkrr::pipeline::now();
     let bytes = std::fs::read(&input).map_err(|e| fail(format!("cannot read {input}: {e}")))?;
@@ -191,14 +191,38 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         eprintln!("notice: {n}");
     }
     let name = std::path::Path::new(&input).file_stem().map(|s| s.to_string_lossy().into_owned());
-    let (glb, glb_report) = nkrr::io::gltf::write_glb_with_report(&rec.mesh, &nkrr::io::gltf::GlbOptions { name, translation: rec.translation() })
-        .map_err(|e| fail(format!("writing {output}: {e}")))?;
-    std::fs::write(&output, &glb).map_err(|e| fail(format!("cannot write {output}: {e}")))?;
+    let comment = format!("nkrr {} from {input}", env!("CARGO_PKG_VERSION"));
+    let (bytes, vertices, triangles) = match format {
+        MeshFormat::Glb => {
+            let (glb, r) = nkrr::io::gltf::write_glb_with_report(&rec.mesh, &nkrr::io::gltf::GlbOptions { name, translation: rec.translation() })
+                .map_err(|e| fail(format!("writing {output}: {e}")))?;
+            (glb, r.vertices_written, r.triangles_written)
+        }
+        MeshFormat::Ply | MeshFormat::Obj | MeshFormat::Stl => {
+            let write = match format {
+                MeshFormat::Ply => mesh_out::write_ply,
+                MeshFormat::Obj => mesh_out::write_obj,
+                _ => mesh_out::write_stl,
+            };
+            // These formats have no root translation: far-off meshes go back to user
+            // coordinates in the format's f32 (losing precision there; GLB keeps it).
+            let mut moved = None;
+            if let Some(o) = rec.translation() {
+                eprintln!("warning: {output} stores f32 positions with the offset {o:?} added (use .glb to keep full precision)");
+                let mut m = rec.mesh.clone();
+                m.positions = rec.positions_f64().iter().map(|p| p.map(|x| x as f32)).collect();
+                moved = Some(m);
+            }
+            let b = write(moved.as_ref().unwrap_or(&rec.mesh), &comment).map_err(|e| fail(format!("writing {output}: {e}")))?;
+            (b, rec.mesh.vertex_count(), rec.mesh.indices.len() / 3)
+        }
+    };
+    std::fs::write(&output, &bytes).map_err(|e| fail(format!("cannot write {output}: {e}")))?;
     let times: Vec<String> = rec.timings.iter().map(|(s, t)| format!("{s} {t:.2}s")).collect();
     println!(
         "{output}: {} vertices, {} triangles, watertight: {}; {} (total {:.2}s); {} field evaluations",
-        glb_report.vertices_written,
-        glb_report.triangles_written,
+        vertices,
+        triangles,
         if rec.mesh.is_watertight() { "yes" } else { "no" },
         times.join(", "),
         nkrr::pipeline::now() - t0,
