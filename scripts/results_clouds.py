@@ -1,0 +1,62 @@
+"""Builds the results work folder: links to the eval meshes and 3k/10k clouds of
+../shared/data/eval, plus NAME-500.ply (500 points uniform on NAME.obj's surface, Gaussian noise
+sigma = 0.005 x the longest bbox side, seed 3, binary little-endian PLY, x y z float32) and the
+synthetic scaling clouds scale-N.ply (N points on spot.obj, same noise, seed 4).
+usage: results_clouds.py DATA WORK"""
+import os
+import sys
+
+import numpy as np
+import trimesh
+
+SCALE_SIZES = [1000, 3000, 10000, 30000, 100000, 300000, 1000000]
+
+
+def write_ply(path, pts):
+    pts = np.ascontiguousarray(pts, dtype="<f4")
+    with open(path + ".tmp", "wb") as f:
+        f.write((f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\n"
+                 "property float x\nproperty float y\nproperty float z\nend_header\n").encode())
+        f.write(pts.tobytes())
+    os.replace(path + ".tmp", path)
+
+
+def noisy_samples(mesh, n, seed):
+    rng = np.random.default_rng(seed)
+    area = mesh.area_faces
+    fi = rng.choice(len(area), size=n, p=area / area.sum())
+    u, v = rng.random(n), rng.random(n)
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    tri = mesh.triangles[fi]
+    pts = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
+    sigma = 0.005 * float(np.max(mesh.bounds[1] - mesh.bounds[0]))
+    return pts + rng.normal(0.0, sigma, pts.shape)
+
+
+def main():
+    data, work = sys.argv[1], sys.argv[2]
+    os.makedirs(work, exist_ok=True)
+    names = sorted(f[:-4] for f in os.listdir(data) if f.endswith(".obj"))
+    for name in names:
+        for f in (f"{name}.obj", f"{name}-3k.ply", f"{name}-10k.ply"):
+            dst = os.path.join(work, f)
+            if not os.path.exists(dst):
+                os.symlink(os.path.abspath(os.path.join(data, f)), dst)
+        out = os.path.join(work, f"{name}-500.ply")
+        if not os.path.exists(out):
+            mesh = trimesh.load(os.path.join(data, f"{name}.obj"), process=False, force="mesh")
+            write_ply(out, noisy_samples(mesh, 500, 3))
+            print("wrote", out)
+    sdir = os.path.join(work, "scale")
+    os.makedirs(sdir, exist_ok=True)
+    spot = trimesh.load(os.path.join(data, "spot.obj"), process=False, force="mesh")
+    for n in SCALE_SIZES:
+        out = os.path.join(sdir, f"scale-{n}.ply")
+        if not os.path.exists(out):
+            write_ply(out, noisy_samples(spot, n, 4))
+            print("wrote", out)
+
+
+if __name__ == "__main__":
+    main()
