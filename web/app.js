@@ -95,8 +95,10 @@ async function openFile(file, source = null) {
   }
   $('show-mesh').disabled = true;
   $('show-wire').disabled = true;
+  // An even subsample of at most 100k points stays on the page for the live trim.
+  const points = cloud.sample_positions(100_000);
   cloud.free();
-  input = { name: file.name, file, source }; // the worker reads the file itself for each run
+  input = { name: file.name, file, source, points }; // the worker reads the file itself for each run
   updateShareLink();
   setResult(null);
   $('progress').hidden = true;
@@ -273,7 +275,10 @@ function onDone(r) {
   requestRender();
   $('progress-bar').value = 1;
   $('stage').textContent = `Done in ${secs(elapsed)}`;
-  setResult({ name, glb: r.glb, stats: r.stats, elapsed, mesh: { positions: r.positions, normals: r.normals, indices: r.indices } });
+  setResult({
+    name, glb: r.glb, stats: r.stats, elapsed, points: input?.points,
+    mesh: { positions: r.positions, normals: r.normals, indices: r.indices, colors: r.colors, translation: r.translation },
+  });
   finish('done', notShown ?? '');
   $('result').scrollIntoView({ block: 'nearest' });
 }
@@ -300,18 +305,44 @@ function setResult(r) {
   $('r-bytes').textContent = `${r.name}.glb, ${fmt.format(Math.round(s.bytes / 1024))} KiB`;
   $('r-notices').replaceChildren(...s.notices.map((n) => Object.assign(document.createElement('li'), { textContent: n })));
   $('download').textContent = `Download ${r.name}.glb`;
-  $('download-ply').textContent = `Download ${r.name}.ply`;
+  r.indices = r.mesh.indices; // the triangles shown and downloaded (a subset when trimmed)
+  $('trim').value = '0';
+  applyTrim(true);
+}
+
+/** Applies the trim slider to the result: the view and the downloads follow it. */
+function applyTrim(initial = false) {
+  if (!result) return;
+  const f = Number($('trim').value);
+  $('trim-value').textContent = f > 0 ? `${f} × spacing` : 'off';
+  const m = result.mesh;
+  result.indices = f > 0 && result.points ? nk.trim_indices(result.points, m.positions, m.indices, f) : m.indices;
+  const removed = (m.indices.length - result.indices.length) / 3;
+  document.body.dataset.trimmed = String(removed);
+  $('r-triangles').textContent = removed > 0
+    ? `${fmt.format(result.indices.length / 3)} (${fmt.format(removed)} trimmed; open)`
+    : fmt.format(result.stats.triangles);
+  const closed = removed === 0 && result.stats.watertight;
+  $('r-watertight').textContent = removed > 0 ? 'no (trimmed)' : closed ? 'yes' : 'no';
+  $('r-watertight').className = closed ? 'yes' : 'no';
+  if (initial && f === 0) return; // onDone has just shown the whole mesh
+  try {
+    viewer.set_mesh(m.positions, m.normals, result.indices);
+  } catch (e) {
+    show(e.message ?? String(e), 'error');
+  }
+  requestRender();
 }
 
 function download(format = 'glb') {
   if (!result) return;
   let bytes = result.glb;
   let type = 'model/gltf-binary';
-  if (format === 'ply') {
-    // Written on demand from the arrays the viewer already holds (binary PLY with normals).
-    const m = result.mesh;
-    bytes = nk.mesh_to_ply(m.positions, m.normals, m.indices, `nkrr reconstruction of ${result.name}`);
-    type = 'application/octet-stream';
+  const m = result.mesh;
+  if (format !== 'glb' || result.indices !== m.indices) {
+    // Written on demand from the arrays the view holds, so a trimmed mesh downloads trimmed.
+    bytes = nk.mesh_file(format, m.positions, m.normals, m.colors, result.indices, result.name, m.translation);
+    if (format !== 'glb') type = 'application/octet-stream';
   }
   const url = URL.createObjectURL(new Blob([bytes], { type }));
   const a = Object.assign(document.createElement('a'), { href: url, download: `${result.name}.${format}` });
@@ -424,7 +455,8 @@ function wireInput() {
   $('settings').addEventListener('submit', (e) => { e.preventDefault(); run(); });
   $('cancel').addEventListener('click', () => cancel());
   $('download').addEventListener('click', () => download('glb'));
-  $('download-ply').addEventListener('click', () => download('ply'));
+  for (const f of ['ply', 'obj', 'stl']) $(`download-${f}`).addEventListener('click', () => download(f));
+  $('trim').addEventListener('input', () => applyTrim());
   syncMethodFields();
 }
 

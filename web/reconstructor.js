@@ -6,7 +6,8 @@
 //   const r = new Reconstructor();
 //   const out = await r.reconstruct(plyBytes, { resolution: 128 }, { onProgress, signal });
 //   // out.glb: Uint8Array (a .glb file); out.positions, out.normals: Float32Array (xyz per
-//   // vertex); out.indices: Uint32Array (3 per triangle); out.stats: vertices, triangles,
+//   // vertex); out.indices: Uint32Array (3 per triangle); out.colors: Uint8Array (RGBA per vertex,
+//   // empty without colours); out.translation: Float64Array (xyz of a far-off cloud, or empty); out.stats: vertices, triangles,
 //   // watertight, timings [{ stage, seconds }], notices, tuning, …
 //
 // Options (all optional; defaults are the paper's): method ('network' | 'nkrr'), m, steps,

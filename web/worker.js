@@ -8,7 +8,7 @@
 //                  { type: 'simulate-device-loss' }       (tests: destroys the GPU device)
 //   worker → page  { type: 'ready', adapter }           the engine is up (answer to 'prepare')
 //                  { type: 'progress', id, stage, … }   see `reconstruct` in src/web/api.rs
-//                  { type: 'done', id, result }          glb, positions, normals, indices, stats
+//                  { type: 'done', id, result }          glb, positions, normals, indices, colors, translation, stats
 //                  { type: 'cancelled', id }
 //                  { type: 'error', id?, name, message }
 //
@@ -41,7 +41,7 @@ async function run({ id, bytes, options, cancelFlag }) {
     const data = new Uint8Array(bytes instanceof Blob ? await bytes.arrayBuffer() : bytes);
     if (stopped()) { postMessage({ type: 'cancelled', id }); return; }
     const r = await reconstruct(data, options ?? {}, onProgress);
-    const transfer = [r.glb.buffer, r.positions.buffer, r.normals.buffer, r.indices.buffer];
+    const transfer = [r.glb.buffer, r.positions.buffer, r.normals.buffer, r.indices.buffer, r.colors.buffer];
     postMessage({ type: 'done', id, result: r }, transfer);
   } catch (e) {
     if (e?.name === 'AbortError') postMessage({ type: 'cancelled', id });

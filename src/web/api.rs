@@ -78,6 +78,88 @@ pub fn simulate_device_loss() -> bool {
     true
 }
 
+/// A mesh file written on the page from the arrays `reconstruct` resolves to (`positions`,
+/// `normals`: xyz per vertex; `colors`: RGBA per vertex or empty; `indices`: three per
+/// triangle, possibly a subset after trimming), so downloads match what the view shows.
+/// `format` is "glb", "ply", "obj" or "stl"; vertices no triangle uses are left out;
+/// `translation` (empty or xyz) is the GLB root translation of far-off clouds (the other
+/// formats add it to their f32 positions).
+#[wasm_bindgen]
+pub fn mesh_file(
+    format: &str,
+    positions: &[f32],
+    normals: &[f32],
+    colors: &[u8],
+    indices: &[u32],
+    name: &str,
+    translation: &[f64],
+) -> Result<Vec<u8>, JsError> {
+    let n = positions.len() / 3;
+    if positions.len() % 3 != 0 || normals.len() != positions.len() || !(colors.is_empty() || colors.len() == 4 * n) {
+        return Err(JsError::new("mesh_file: positions and normals need 3 floats per vertex, colours 4 bytes"));
+    }
+    let triples = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+    let mut mesh = crate::mesh::Mesh {
+        positions: triples(positions),
+        normals: triples(normals),
+        colors: (!colors.is_empty()).then(|| colors.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect()),
+        indices: indices.to_vec(),
+    };
+    if mesh.indices.len() % 3 != 0 || mesh.indices.iter().any(|&i| i as usize >= n) {
+        return Err(JsError::new("mesh_file: indices must be triples of vertex indices in range"));
+    }
+    let keep = vec![true; mesh.indices.len() / 3];
+    crate::mesh::trim::retain_triangles(&mut mesh, &keep);
+    let translation: Option<[f64; 3]> = (translation.len() == 3).then(|| [translation[0], translation[1], translation[2]]);
+    let comment = format!("nkrr reconstruction of {name}");
+    let fail = |e: String| JsError::new(&format!("mesh_file ({format}): {e}"));
+    use crate::io::mesh_out::{write_obj, write_ply, write_stl};
+    if format != "glb" {
+        if let Some(t) = translation {
+            for p in &mut mesh.positions {
+                *p = [0, 1, 2].map(|k| (p[k] as f64 + t[k]) as f32);
+            }
+        }
+    }
+    match format {
+        "glb" => gltf::write_glb(&mesh, &gltf::GlbOptions { translation, name: Some(name.to_string()) })
+            .map_err(|e| fail(e.to_string())),
+        "ply" => write_ply(&mesh, &comment).map_err(fail),
+        "obj" => write_obj(&mesh, &comment).map_err(fail),
+        "stl" => write_stl(&mesh, &comment).map_err(fail),
+        _ => Err(JsError::new(&format!("mesh_file: unknown format '{format}' (glb, ply, obj or stl)"))),
+    }
+}
+
+/// The triangles of a mesh (given as `reconstruct`'s arrays) that lie within `factor` × the
+/// mean point spacing of `points` (xyz, the cloud or an even subsample of it), as indices into
+/// the same vertices: the page's live trim, without re-running the reconstruction (the
+/// pipeline's `trim` option does the same on the points the network saw).
+#[wasm_bindgen]
+pub fn trim_indices(points: &[f32], positions: &[f32], indices: &[u32], factor: f32) -> Vec<u32> {
+    let pts: Vec<[f32; 3]> = points.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let verts: Vec<[f32; 3]> = positions.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let threshold = factor * crate::sample::mean_spacing(&pts);
+    if pts.is_empty() || !(threshold > 0.0 && threshold.is_finite()) {
+        return indices.to_vec();
+    }
+    let index = crate::sample::PointIndex::new(&pts);
+    let mut scratch = Vec::new();
+    let n = verts.len();
+    indices
+        .chunks_exact(3)
+        .filter(|t| {
+            t.iter().all(|&i| (i as usize) < n) && {
+                let [a, b, c] = [t[0], t[1], t[2]].map(|i| verts[i as usize]);
+                let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
+                index.nearest_distance(centroid, &mut scratch) <= threshold
+            }
+        })
+        .flatten()
+        .copied()
+        .collect()
+}
+
 /// Reconstructs a surface from PLY bytes.
 ///
 /// `options` is a plain object, every field optional (defaults: the paper's m and steps; λ and
@@ -94,19 +176,6 @@ pub fn simulate_device_loss() -> bool {
 ///
 /// Resolves to `{ glb: Uint8Array, positions: Float32Array, normals: Float32Array,
 /// indices: Uint32Array, stats }` (see `stats_object` for the fields of `stats`).
-/// A binary little-endian PLY of a mesh given as the arrays `reconstruct` resolves to
-/// (`positions`, `normals`: xyz per vertex; `indices`: three per triangle), for the page's PLY
-/// download. Fails on inconsistent lengths or an index out of range.
-#[wasm_bindgen]
-pub fn mesh_to_ply(positions: &[f32], normals: &[f32], indices: &[u32], comment: &str) -> Result<Vec<u8>, JsError> {
-    if positions.len() % 3 != 0 || normals.len() != positions.len() {
-        return Err(JsError::new("mesh_to_ply: positions and normals must both hold 3 floats per vertex"));
-    }
-    let triples = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
-    let mesh = crate::mesh::Mesh { positions: triples(positions), normals: triples(normals), colors: None, indices: indices.to_vec() };
-    crate::io::mesh_out::write_ply(&mesh, comment).map_err(|e| JsError::new(&format!("mesh_to_ply: {e}")))
-}
-
 #[wasm_bindgen]
 pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Function) -> Result<JsValue, JsValue> {
     let t0 = now();
@@ -216,6 +285,10 @@ pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Func
     set(&out, "positions", Float32Array::from(bytemuck::cast_slice::<[f32; 3], f32>(&mesh.positions)));
     set(&out, "normals", Float32Array::from(bytemuck::cast_slice::<[f32; 3], f32>(&mesh.normals)));
     set(&out, "indices", Uint32Array::from(mesh.indices.as_slice()));
+    let colors: Vec<u8> = mesh.colors.as_ref().map(|c| c.iter().flatten().copied().collect()).unwrap_or_default();
+    set(&out, "colors", Uint8Array::from(colors.as_slice()));
+    let translation: Vec<f64> = translation.map(|t| t.to_vec()).unwrap_or_default();
+    set(&out, "translation", js_sys::Float64Array::from(translation.as_slice()));
     set(&out, "stats", stats);
     Ok(out.into())
 }

@@ -56,6 +56,14 @@ impl Cloud {
         self.parsed.warnings()
     }
 
+    /// An even subsample (every k-th point) of at most `max` positions, xyz flat: what the page
+    /// keeps of a cloud after drawing it, for the live trim.
+    pub fn sample_positions(&self, max: usize) -> Vec<f32> {
+        let p = &self.parsed.cloud.positions;
+        let step = p.len().div_ceil(max.max(1)).max(1);
+        p.iter().step_by(step).flatten().copied().collect()
+    }
+
     /// A one-line description of the file's layout (format, properties).
     #[wasm_bindgen(getter)]
     pub fn layout(&self) -> String {

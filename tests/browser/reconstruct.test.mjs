@@ -200,6 +200,23 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     assert.equal(Number(head.match(/element face (\d+)/)[1]), glb.indices.length / 3);
     assert.equal(plyBytes.length, head.length + glb.vertices * 24 + (glb.indices.length / 3) * 13);
 
+    // The live trim: the slider drops triangles far from the points without a re-run, and the
+    // downloads follow it (OBJ and STL here, written on the page).
+    const total = glb.indices.length / 3;
+    await page.evaluate(() => { const t = document.getElementById('trim'); t.value = '2'; t.dispatchEvent(new Event('input')); });
+    const trimmed = Number(await page.evaluate(() => document.body.dataset.trimmed));
+    assert.ok(trimmed > 0 && trimmed < total / 2, `trimmed ${trimmed} of ${total}`);
+    assert.match(await page.textContent('#r-triangles'), /trimmed; open/);
+    const [objDl] = await Promise.all([page.waitForEvent('download'), page.click('#download-obj')]);
+    assert.equal(objDl.suggestedFilename(), 'spot-3k.obj');
+    const objText = fs.readFileSync(await objDl.path(), 'utf8');
+    assert.equal(objText.split('\n').filter((l) => l.startsWith('f ')).length, total - trimmed);
+    const [stlDl] = await Promise.all([page.waitForEvent('download'), page.click('#download-stl')]);
+    assert.equal(fs.statSync(await stlDl.path()).size, 84 + 50 * (total - trimmed));
+    await page.screenshot({ path: path.join(ARTIFACTS, 'reconstruct-spot-3k-trimmed.png') });
+    await page.evaluate(() => { const t = document.getElementById('trim'); t.value = '0'; t.dispatchEvent(new Event('input')); });
+    assert.equal(await page.evaluate(() => document.body.dataset.trimmed), '0');
+
     const cloud = plyBounds(fs.readFileSync(SCAN));
     for (let a = 0; a < 3; a++) {
       const size = cloud.max[a] - cloud.min[a];
