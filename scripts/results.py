@@ -9,7 +9,7 @@ already there, so a second run only redoes the report; --fresh redoes everything
 PHASE one phase. Phases: main, spsr, rerun, scaling, ablations, render; then the report.
 
     .venv-peers/bin/python scripts/results.py [--work target/results] [--fresh] [--redo PHASE]
-        [--ablation-shapes cow,fandisk] [--scale-nkrr-max 10000]
+        [--ablation-shapes A,B,...] [--scale-nkrr-max 10000]
 """
 import argparse
 import datetime
@@ -83,6 +83,29 @@ def seeds_phase(work):
                 rows.append(json.dumps(r))
         open(path, "w").write("\n".join(rows) + "\n")
     return [json.loads(x) for x in open(path)]
+
+
+def ablations_phase(work, shapes, run):
+    """The ablations at 3k: WORK/ablations.json (one run over several shapes, from an earlier
+    version of this script) and WORK/ablations-SHAPE.json for each shape it lacks; with RUN,
+    the missing shapes are run. Returns the finished runs merged, or None."""
+    parts = []
+    if os.path.exists(os.path.join(work, "ablations.wall")):
+        parts.append(load_eval(os.path.join(work, "ablations")))
+    have = {r["shape"] for p in parts for r in p["runs"]}
+    for shape in shapes:
+        if shape in have:
+            continue
+        prefix = os.path.join(work, f"ablations-{shape}")
+        if run:
+            eval_phase(work, f"ablations-{shape}", ["--sizes", "3k", "--methods",
+                                                     ",".join(ABLATIONS), "--shapes", shape])
+        if os.path.exists(prefix + ".wall"):
+            parts.append(load_eval(prefix))
+    if not parts:
+        return None
+    return {"runs": [r for p in parts for r in p["runs"]],
+            "wall_s": sum(p["wall_s"] or 0 for p in parts)}
 
 
 def spsr_phase(work):
@@ -395,7 +418,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w("tests/peers/spsr.py --data target/results/data --sizes 500,3k,10k --depth 8 "
       "--metrics-cmd 'target/release/nkrr metrics'")
     w(f"nkrr eval target/results/data --sizes 3k --methods {','.join(ABLATIONS)} "
-      f"--shapes {','.join(abl_shapes)}")
+      f"--shapes {','.join(abl_shapes)}   # in groups of shapes")
     w(f"nkrr eval target/results/data --sizes 3k --methods network,nkrr --shapes "
       f"{','.join(RERUN_SHAPES)}   # the re-run")
     w("/usr/bin/time -v nkrr reconstruct scale-N.ply -o out.glb --method network|nkrr")
@@ -529,7 +552,7 @@ def main():
     ap.add_argument("--work", default="target/results")
     ap.add_argument("--fresh", action="store_true")
     ap.add_argument("--redo", default="")
-    ap.add_argument("--ablation-shapes", default="cow,fandisk")
+    ap.add_argument("--ablation-shapes", default="cow,fandisk,spot,stanford-bunny,suzanne,teapot")
     ap.add_argument("--scale-nkrr-max", type=int, default=10000,
                     help="largest scaling cloud nkrr (defaults) runs on; the network runs on all")
     ap.add_argument("--render-shapes", default="stanford-bunny,fandisk")
@@ -564,14 +587,12 @@ def main():
     if "scaling" in phases:
         scaling_phase(work, a.scale_nkrr_max)
     if "ablations" in phases:
-        eval_phase(work, "ablations", ["--sizes", "3k", "--methods", ",".join(ABLATIONS),
-                                       "--shapes", ",".join(abl_shapes)])
+        ablations_phase(work, abl_shapes, run=True)
     if "render" in phases:
         render_phase(work, a.render_shapes.split(","), "3k")
     if "report" in phases:
-        abl = None
-        if os.path.exists(os.path.join(work, "ablations.wall")):
-            abl = load_eval(os.path.join(work, "ablations"))
+        abl = ablations_phase(work, abl_shapes, run=False)
+        if abl:
             abl_shapes = sorted({r["shape"] for r in abl["runs"]})
         report(work, load_eval(os.path.join(work, "main")), spsr_phase(work),
                load_eval(os.path.join(work, "rerun")), seeds_phase(work), scaling_phase(work, a.scale_nkrr_max),
