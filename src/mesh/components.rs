@@ -75,37 +75,13 @@ pub fn remove_small_components(mesh: &mut Mesh, fraction: f32) -> Removal {
         return r;
     }
     let n = mesh.positions.len();
-    let mut indices = Vec::with_capacity(mesh.indices.len());
-    let mut used = vec![false; n];
-    for (t, &c) in mesh.indices.chunks_exact(3).zip(&comp) {
-        if keep[c as usize] && t.iter().all(|&i| (i as usize) < n) {
-            indices.extend_from_slice(t);
-            for &i in t {
-                used[i as usize] = true;
-            }
-        } else {
-            r.triangles_removed += 1;
-        }
-    }
-    let mut remap = vec![u32::MAX; n];
-    let mut next = 0u32;
-    for (i, &u) in used.iter().enumerate() {
-        if u {
-            remap[i] = next;
-            next += 1;
-        }
-    }
-    let pick =
-        |v: &Vec<[f32; 3]>| -> Vec<[f32; 3]> { v.iter().zip(&used).filter(|(_, &u)| u).map(|(p, _)| *p).collect() };
-    mesh.positions = pick(&mesh.positions);
-    if mesh.normals.len() == n {
-        mesh.normals = pick(&mesh.normals);
-    }
-    if let Some(c) = mesh.colors.as_mut() {
-        if c.len() == n {
-            *c = c.iter().zip(&used).filter(|(_, &u)| u).map(|(x, _)| *x).collect();
-        }
-    }
-    mesh.indices = indices.iter().map(|&i| remap[i as usize]).collect();
+    let keep_triangle: Vec<bool> = mesh
+        .indices
+        .chunks_exact(3)
+        .zip(&comp)
+        .map(|(t, &c)| keep[c as usize] && t.iter().all(|&i| (i as usize) < n))
+        .collect();
+    r.triangles_removed = keep_triangle.iter().filter(|&&k| !k).count();
+    super::trim::retain_triangles(mesh, &keep_triangle);
     r
 }

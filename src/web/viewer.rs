@@ -585,66 +585,28 @@ impl Viewer {
     }
 }
 
-/// The mesh's render pipeline, its uniform buffer and bind group.
+/// The mesh's render pipeline (lit triangles), its uniform buffer and bind group.
 fn mesh_pipeline(
     device: &wgpu::Device,
     format: wgpu::TextureFormat,
 ) -> (wgpu::RenderPipeline, wgpu::Buffer, wgpu::BindGroup) {
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("mesh"),
-        source: wgpu::ShaderSource::Wgsl(MESH_SHADER.into()),
-    });
-    let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("mesh"),
-        layout: None,
-        vertex: wgpu::VertexState {
-            module: &module,
-            entry_point: Some("vs"),
-            compilation_options: Default::default(),
-            buffers: &[
-                Some(wgpu::VertexBufferLayout {
-                    array_stride: 12,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-                }),
-                Some(wgpu::VertexBufferLayout {
-                    array_stride: 12,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &wgpu::vertex_attr_array![1 => Float32x3],
-                }),
-            ],
-        },
-        fragment: Some(wgpu::FragmentState {
-            module: &module,
-            entry_point: Some("fs"),
-            compilation_options: Default::default(),
-            targets: &[Some(format.into())],
-        }),
-        // Both sides: back faces are shaded differently, not culled, so holes show.
-        primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, ..Default::default() },
-        depth_stencil: Some(wgpu::DepthStencilState {
-            format: DEPTH,
-            depth_write_enabled: Some(true),
-            depth_compare: Some(wgpu::CompareFunction::Less),
-            stencil: Default::default(),
-            // Pushed back a little so points lying on the surface stay visible in "both".
-            bias: wgpu::DepthBiasState { constant: 2, slope_scale: 1.0, clamp: 0.0 },
-        }),
-        multisample: Default::default(),
-        multiview_mask: None,
-        cache: None,
-    });
     let uniform = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("mesh view"),
         size: std::mem::size_of::<MeshUniform>() as u64,
         usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
-    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("mesh view"),
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
-    });
+    // Both sides: back faces are shaded differently, not culled, so holes show. Pushed back a
+    // little so points lying on the surface (and the wireframe) stay visible over it.
+    let depth = wgpu::DepthStencilState {
+        format: DEPTH,
+        depth_write_enabled: Some(true),
+        depth_compare: Some(wgpu::CompareFunction::Less),
+        stencil: Default::default(),
+        bias: wgpu::DepthBiasState { constant: 2, slope_scale: 1.0, clamp: 0.0 },
+    };
+    let (pipeline, bind_group) =
+        mesh_vertex_pipeline(device, format, &uniform, "mesh", "fs", wgpu::PrimitiveTopology::TriangleList, depth);
     (pipeline, uniform, bind_group)
 }
 
@@ -660,20 +622,41 @@ fn unique_edges(indices: &[u32]) -> Vec<u32> {
     keys.iter().flat_map(|&k| [(k >> 32) as u32, k as u32]).collect()
 }
 
-/// The wireframe's pipeline: the mesh's vertex layout and uniform, a line list, a flat colour.
-/// The shaded mesh is drawn with a depth bias pushing it back, so its own edges pass the depth
-/// test and the hidden ones do not.
+/// The wireframe's pipeline: the mesh's vertices and uniform, a line list, a flat colour. The
+/// shaded mesh is drawn with a depth bias pushing it back, so its own edges pass the depth test
+/// and the hidden ones do not.
 fn wire_pipeline(
     device: &wgpu::Device,
     format: wgpu::TextureFormat,
     uniform: &wgpu::Buffer,
 ) -> (wgpu::RenderPipeline, wgpu::BindGroup) {
+    let depth = wgpu::DepthStencilState {
+        format: DEPTH,
+        depth_write_enabled: Some(false),
+        depth_compare: Some(wgpu::CompareFunction::LessEqual),
+        stencil: Default::default(),
+        bias: Default::default(),
+    };
+    mesh_vertex_pipeline(device, format, uniform, "mesh wireframe", "fs_wire", wgpu::PrimitiveTopology::LineList, depth)
+}
+
+/// A pipeline over the mesh's vertex buffers (positions, normals) and its view uniform, with
+/// `shaders/mesh.wgsl`'s vertex stage and the given fragment entry, topology and depth state.
+fn mesh_vertex_pipeline(
+    device: &wgpu::Device,
+    format: wgpu::TextureFormat,
+    uniform: &wgpu::Buffer,
+    label: &str,
+    fragment_entry: &str,
+    topology: wgpu::PrimitiveTopology,
+    depth: wgpu::DepthStencilState,
+) -> (wgpu::RenderPipeline, wgpu::BindGroup) {
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("mesh wireframe"),
+        label: Some(label),
         source: wgpu::ShaderSource::Wgsl(MESH_SHADER.into()),
     });
     let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("mesh wireframe"),
+        label: Some(label),
         layout: None,
         vertex: wgpu::VertexState {
             module: &module,
@@ -694,24 +677,18 @@ fn wire_pipeline(
         },
         fragment: Some(wgpu::FragmentState {
             module: &module,
-            entry_point: Some("fs_wire"),
+            entry_point: Some(fragment_entry),
             compilation_options: Default::default(),
             targets: &[Some(format.into())],
         }),
-        primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::LineList, ..Default::default() },
-        depth_stencil: Some(wgpu::DepthStencilState {
-            format: DEPTH,
-            depth_write_enabled: Some(false),
-            depth_compare: Some(wgpu::CompareFunction::LessEqual),
-            stencil: Default::default(),
-            bias: Default::default(),
-        }),
+        primitive: wgpu::PrimitiveState { topology, ..Default::default() },
+        depth_stencil: Some(depth),
         multisample: Default::default(),
         multiview_mask: None,
         cache: None,
     });
     let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("mesh wireframe view"),
+        label: Some(label),
         layout: &pipeline.get_bind_group_layout(0),
         entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
     });
