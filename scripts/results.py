@@ -339,35 +339,24 @@ def machine():
     return cpu, os.cpu_count(), mem, adapter
 
 
-def seed_table(main_rows, seed_rows):
+def compare_table(main_rows, rows, what, times=False):
+    """Rows of the main 3k run beside the same (shape, method) from another run or scoring:
+    the markdown table (`what` names the two columns, e.g. "seed 1 / seed 2") and the largest
+    absolute difference per metric."""
     by = {(r["shape"], r["method"]): r for r in main_rows if r["size"] == "3k"}
-    lines = ["| shape | method | CD1 x100 seed 1 / seed 2 | F-score | NC | IoU |",
-             "|---|---|---|---|---|---|"]
-    diffs = {k: [] for k in ("cd1x100", "fscore", "nc", "iou")}
-    for r in seed_rows:
+    keys = ("cd1x100", "fscore", "nc", "iou")
+    lines = [f"| shape | method | CD1 x100 {what} | F-score | NC | IoU |" + (" seconds |" if times else ""),
+             "|---|---|---|---|---|---|" + ("---|" if times else "")]
+    diffs = {k: [] for k in keys}
+    for r in rows:
         a = by[(r["shape"], r["method"])]
         cells = []
-        for k in ("cd1x100", "fscore", "nc", "iou"):
+        for k in keys:
             cells.append(f"{fmt(a.get(k), 4)} / {fmt(r.get(k), 4)}")
             if a.get(k) is not None:
                 diffs[k].append(abs(a[k] - r[k]))
-        lines.append(f"| {r['shape']} | {r['method']} | " + " | ".join(cells) + " |")
-    return "\n".join(lines), {k: max(v) if v else None for k, v in diffs.items()}
-
-
-def rerun_table(main_rows, rerun_rows):
-    by = {(r["shape"], r["method"]): r for r in main_rows if r["size"] == "3k"}
-    lines = ["| shape | method | CD1 x100 first / re-run | F-score | NC | IoU | seconds |",
-             "|---|---|---|---|---|---|---|"]
-    diffs = {k: [] for k in ("cd1x100", "fscore", "nc", "iou")}
-    for r in rerun_rows:
-        a = by[(r["shape"], r["method"])]
-        cells = []
-        for k in ("cd1x100", "fscore", "nc", "iou"):
-            cells.append(f"{fmt(a.get(k), 4)} / {fmt(r.get(k), 4)}")
-            if a.get(k) is not None:
-                diffs[k].append(abs(a[k] - r[k]))
-        cells.append(f"{fmt(a['times'].get('total'), 1)} / {fmt(r['times'].get('total'), 1)}")
+        if times:
+            cells.append(f"{fmt(a['times'].get('total'), 1)} / {fmt(r['times'].get('total'), 1)}")
         lines.append(f"| {r['shape']} | {r['method']} | " + " | ".join(cells) + " |")
     return "\n".join(lines), {k: max(v) if v else None for k, v in diffs.items()}
 
@@ -475,7 +464,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
         w("Not run.\n")
 
     w("## Does a re-run reproduce the numbers?\n")
-    t, d = rerun_table(runs, rerun["runs"])
+    t, d = compare_table(runs, rerun["runs"], "first / re-run", times=True)
     w(f"`network` and `nkrr` on {', '.join(RERUN_SHAPES)} at 3k, run a second time by a separate `nkrr eval` process "
       "(first run / re-run):\n")
     w(t)
@@ -485,7 +474,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
         "metrics (seeded samples) are deterministic here, so only the times move with the load."
         if all(v == 0 for v in d.values() if v is not None) else
         "The re-run moves the metrics by the amounts above.") + "\n")
-    t, d = seed_table(runs, seeds)
+    t, d = compare_table(runs, seeds, "seed 1 / seed 2")
     w("The metrics' own sampling noise, for scale: the same meshes from the main run scored "
       "again with other surface and volume samples (`nkrr metrics GT MESH --seed 2`; "
       "`nkrr eval` uses seed 1):\n")

@@ -192,31 +192,11 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     }
     let name = std::path::Path::new(&input).file_stem().map(|s| s.to_string_lossy().into_owned());
     let comment = format!("nkrr {} from {input}", env!("CARGO_PKG_VERSION"));
-    let (bytes, vertices, triangles) = match format {
-        MeshFormat::Glb => {
-            let (glb, r) = nkrr::io::gltf::write_glb_with_report(&rec.mesh, &nkrr::io::gltf::GlbOptions { name, translation: rec.translation() })
-                .map_err(|e| fail(format!("writing {output}: {e}")))?;
-            (glb, r.vertices_written, r.triangles_written)
-        }
-        MeshFormat::Ply | MeshFormat::Obj | MeshFormat::Stl => {
-            let write = match format {
-                MeshFormat::Ply => mesh_out::write_ply,
-                MeshFormat::Obj => mesh_out::write_obj,
-                _ => mesh_out::write_stl,
-            };
-            // These formats have no root translation: far-off meshes go back to user
-            // coordinates in the format's f32 (losing precision there; GLB keeps it).
-            let mut moved = None;
-            if let Some(o) = rec.translation() {
-                eprintln!("warning: {output} stores f32 positions with the offset {o:?} added (use .glb to keep full precision)");
-                let mut m = rec.mesh.clone();
-                m.positions = rec.positions_f64().iter().map(|p| p.map(|x| x as f32)).collect();
-                moved = Some(m);
-            }
-            let b = write(moved.as_ref().unwrap_or(&rec.mesh), &comment).map_err(|e| fail(format!("writing {output}: {e}")))?;
-            (b, rec.mesh.vertex_count(), rec.mesh.indices.len() / 3)
-        }
-    };
+    if let (Some(o), false) = (rec.translation(), format == MeshFormat::Glb) {
+        eprintln!("warning: {output} stores f32 positions with the offset {o:?} added (use .glb to keep full precision)");
+    }
+    let mesh_out::Written { bytes, vertices, triangles } = mesh_out::write(format, &rec.mesh, name, rec.translation(), &comment)
+        .map_err(|e| fail(format!("writing {output}: {e}")))?;
     std::fs::write(&output, &bytes).map_err(|e| fail(format!("cannot write {output}: {e}")))?;
     let times: Vec<String> = rec.timings.iter().map(|(s, t)| format!("{s} {t:.2}s")).collect();
     println!(

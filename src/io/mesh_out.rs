@@ -22,8 +22,12 @@ pub enum MeshFormat {
 impl MeshFormat {
     /// The format named by a path's extension (case-insensitive), or None.
     pub fn from_path(path: &str) -> Option<MeshFormat> {
-        let ext = std::path::Path::new(path).extension()?.to_str()?.to_ascii_lowercase();
-        match ext.as_str() {
+        Self::from_extension(std::path::Path::new(path).extension()?.to_str()?)
+    }
+
+    /// The format named by an extension without the dot ("glb", "PLY", …), or None.
+    pub fn from_extension(ext: &str) -> Option<MeshFormat> {
+        match ext.to_ascii_lowercase().as_str() {
             "glb" => Some(MeshFormat::Glb),
             "ply" => Some(MeshFormat::Ply),
             "obj" => Some(MeshFormat::Obj),
@@ -31,6 +35,49 @@ impl MeshFormat {
             _ => None,
         }
     }
+}
+
+/// A written mesh file and what it holds.
+pub struct Written {
+    pub bytes: Vec<u8>,
+    pub vertices: usize,
+    pub triangles: usize,
+}
+
+/// `mesh` as a file of `format`: the one dispatch the CLI's `-o` and the page's downloads share.
+/// `translation` is a far-off cloud's origin: GLB keeps it as the root node's translation (f64);
+/// the other formats have none, so it is added to their positions (in f64, then rounded to
+/// f32, losing precision there). `name` names the glTF node; `comment` heads the other formats.
+pub fn write(
+    format: MeshFormat,
+    mesh: &Mesh,
+    name: Option<String>,
+    translation: Option<[f64; 3]>,
+    comment: &str,
+) -> Result<Written, String> {
+    if format == MeshFormat::Glb {
+        let (bytes, r) = crate::io::gltf::write_glb_with_report(mesh, &crate::io::gltf::GlbOptions { name, translation })
+            .map_err(|e| e.to_string())?;
+        return Ok(Written { bytes, vertices: r.vertices_written, triangles: r.triangles_written });
+    }
+    let moved;
+    let mesh = match translation {
+        Some(t) => {
+            let mut m = mesh.clone();
+            for p in &mut m.positions {
+                *p = [0, 1, 2].map(|k| (p[k] as f64 + t[k]) as f32);
+            }
+            moved = m;
+            &moved
+        }
+        None => mesh,
+    };
+    let bytes = match format {
+        MeshFormat::Ply => write_ply(mesh, comment)?,
+        MeshFormat::Obj => write_obj(mesh, comment)?,
+        _ => write_stl(mesh, comment)?,
+    };
+    Ok(Written { bytes, vertices: mesh.vertex_count(), triangles: mesh.indices.len() / 3 })
 }
 
 fn check(mesh: &Mesh) -> Result<(), String> {
@@ -170,6 +217,7 @@ mod tests {
         assert_eq!(MeshFormat::from_path("x.glb"), Some(MeshFormat::Glb));
         assert_eq!(MeshFormat::from_path("x.gltf"), None);
         assert_eq!(MeshFormat::from_path("noext"), None);
+        assert_eq!(MeshFormat::from_extension("Stl"), Some(MeshFormat::Stl));
     }
 
     #[test]

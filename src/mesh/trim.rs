@@ -26,30 +26,47 @@ pub struct TrimReport {
 /// same coordinates. A `factor` that is not positive and finite, or fewer than two distinct
 /// points, removes nothing.
 pub fn trim(mesh: &mut Mesh, points: &[[f32; 3]], factor: f32) -> TrimReport {
+    let near = near_triangles(&mesh.positions, &mesh.indices, points, factor);
+    let mut report = TrimReport { spacing: near.spacing, threshold: near.threshold, ..Default::default() };
+    if let Some(keep) = near.keep {
+        report.triangles_removed = keep.iter().filter(|&&k| !k).count();
+        report.vertices_removed = retain_triangles(mesh, &keep);
+    }
+    report
+}
+
+/// Which triangles [`trim`] keeps, without changing the mesh (the page's live trim uses it too).
+pub struct NearTriangles {
+    pub spacing: f32,
+    pub threshold: f32,
+    /// Per triangle: its centroid is within `threshold` of a point (and its indices are in
+    /// range). None when the threshold is not positive and finite: nothing is to be removed.
+    pub keep: Option<Vec<bool>>,
+}
+
+/// The triangles (`indices` into `positions`) whose centroid lies within `factor` × the mean
+/// nearest-neighbour spacing of `points` from the nearest of them.
+pub fn near_triangles(positions: &[[f32; 3]], indices: &[u32], points: &[[f32; 3]], factor: f32) -> NearTriangles {
     let spacing = mean_spacing(points);
     let threshold = factor * spacing;
-    let mut report = TrimReport { spacing, threshold, ..Default::default() };
     if !(threshold > 0.0 && threshold.is_finite()) {
-        return report;
+        return NearTriangles { spacing, threshold, keep: None };
     }
     let index = PointIndex::new(points);
-    let n = mesh.positions.len();
+    let n = positions.len();
     let mut scratch = Vec::new();
-    let keep: Vec<bool> = mesh
-        .indices
+    let keep = indices
         .chunks_exact(3)
         .map(|t| {
             if t.iter().any(|&i| i as usize >= n) {
                 return false;
             }
-            let [a, b, c] = [t[0], t[1], t[2]].map(|i| mesh.positions[i as usize]);
+            let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions[i as usize]);
             let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
             index.nearest_distance(centroid, &mut scratch) <= threshold
         })
         .collect();
-    report.triangles_removed = keep.iter().filter(|&&k| !k).count();
-    report.vertices_removed = retain_triangles(mesh, &keep);
-    report
+    NearTriangles { spacing, threshold, keep: Some(keep) }
 }
 
 /// Keeps the triangles `t` with `keep[t]` (and drops any whose index is out of range), then

@@ -12,6 +12,7 @@ use js_sys::{Array, Float32Array, Function, Object, Reflect, Uint32Array, Uint8A
 use wasm_bindgen::prelude::*;
 
 use crate::gpu::Gpu;
+use crate::io::mesh_out::{self, MeshFormat};
 use crate::io::{gltf, ply};
 use crate::pipeline::{now, Engine, Method, PipelineError, Settings, Stage};
 
@@ -111,24 +112,11 @@ pub fn mesh_file(
     let keep = vec![true; mesh.indices.len() / 3];
     crate::mesh::trim::retain_triangles(&mut mesh, &keep);
     let translation: Option<[f64; 3]> = (translation.len() == 3).then(|| [translation[0], translation[1], translation[2]]);
-    let comment = format!("nkrr reconstruction of {name}");
-    let fail = |e: String| JsError::new(&format!("mesh_file ({format}): {e}"));
-    use crate::io::mesh_out::{write_obj, write_ply, write_stl};
-    if format != "glb" {
-        if let Some(t) = translation {
-            for p in &mut mesh.positions {
-                *p = [0, 1, 2].map(|k| (p[k] as f64 + t[k]) as f32);
-            }
-        }
-    }
-    match format {
-        "glb" => gltf::write_glb(&mesh, &gltf::GlbOptions { translation, name: Some(name.to_string()) })
-            .map_err(|e| fail(e.to_string())),
-        "ply" => write_ply(&mesh, &comment).map_err(fail),
-        "obj" => write_obj(&mesh, &comment).map_err(fail),
-        "stl" => write_stl(&mesh, &comment).map_err(fail),
-        _ => Err(JsError::new(&format!("mesh_file: unknown format '{format}' (glb, ply, obj or stl)"))),
-    }
+    let format = MeshFormat::from_extension(format)
+        .ok_or_else(|| JsError::new(&format!("mesh_file: unknown format '{format}' (glb, ply, obj or stl)")))?;
+    mesh_out::write(format, &mesh, Some(name.to_string()), translation, &format!("nkrr reconstruction of {name}"))
+        .map(|w| w.bytes)
+        .map_err(|e| JsError::new(&format!("mesh_file ({format:?}): {e}")))
 }
 
 /// The triangles of a mesh (given as `reconstruct`'s arrays) that lie within `factor` × the
@@ -137,27 +125,11 @@ pub fn mesh_file(
 /// pipeline's `trim` option does the same on the points the network saw).
 #[wasm_bindgen]
 pub fn trim_indices(points: &[f32], positions: &[f32], indices: &[u32], factor: f32) -> Vec<u32> {
-    let pts: Vec<[f32; 3]> = points.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let verts: Vec<[f32; 3]> = positions.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let threshold = factor * crate::sample::mean_spacing(&pts);
-    if pts.is_empty() || !(threshold > 0.0 && threshold.is_finite()) {
-        return indices.to_vec();
+    let triples = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+    match crate::mesh::trim::near_triangles(&triples(positions), indices, &triples(points), factor).keep {
+        None => indices.to_vec(),
+        Some(keep) => indices.chunks_exact(3).zip(keep).filter(|(_, k)| *k).flat_map(|(t, _)| t).copied().collect(),
     }
-    let index = crate::sample::PointIndex::new(&pts);
-    let mut scratch = Vec::new();
-    let n = verts.len();
-    indices
-        .chunks_exact(3)
-        .filter(|t| {
-            t.iter().all(|&i| (i as usize) < n) && {
-                let [a, b, c] = [t[0], t[1], t[2]].map(|i| verts[i as usize]);
-                let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
-                index.nearest_distance(centroid, &mut scratch) <= threshold
-            }
-        })
-        .flatten()
-        .copied()
-        .collect()
 }
 
 /// Reconstructs a surface from PLY bytes.
