@@ -13,8 +13,10 @@ pub mod krr;
 pub mod mesh;
 pub mod net;
 pub mod pipeline;
+pub mod plan;
 pub mod rng;
 pub mod sample;
+pub mod units;
 
 #[cfg(target_arch = "wasm32")]
 pub mod web;

@@ -74,6 +74,10 @@ pub struct Settings {
     /// Colour the mesh's vertices from the cloud's colours, when it has them (see
     /// [`crate::mesh::colour::transfer`]).
     pub colors: bool,
+    /// The cloud's length unit: the mesh is scaled to metres (glTF's unit) when given. None
+    /// leaves coordinates as they are (the caller warns when they look like millimetres:
+    /// [`crate::units::guess`]).
+    pub units: Option<crate::units::Units>,
 }
 
 /// Where the kernel regression's objective and gradient are computed.
@@ -117,6 +121,7 @@ impl Default for Settings {
             krr_backend: KrrBackend::Auto,
             trim: None,
             colors: true,
+            units: None,
         }
     }
 }
@@ -290,6 +295,12 @@ impl Engine {
         Ok(Engine { gpu, net })
     }
 
+    /// The memory each stage will take for a cloud of `points` points on this engine's
+    /// adapter, and what will be changed to fit (see [`crate::plan`]).
+    pub fn memory_plan(&self, points: usize, colours: bool, settings: &Settings) -> crate::plan::MemoryPlan {
+        crate::plan::memory_plan(points, colours, settings, self.net.config(), &crate::plan::DeviceFacts::of(&self.gpu))
+    }
+
     /// Reconstructs `cloud`. `progress` is called at each stage and during meshing; returning
     /// false cancels at the next step.
     pub async fn reconstruct(
@@ -301,6 +312,11 @@ impl Engine {
         let mut timings = Vec::new();
         let mut notices = Vec::new();
         let norm = Normalization::of(cloud).map_err(PipelineError::Cloud)?;
+        // The preflight's plan decides how many points and inducing points fit this adapter
+        // (and, in the browser, the host budget); its actions become notices.
+        let plan = self.memory_plan(cloud.len(), cloud.colors.is_some(), settings);
+        notices.extend(plan.actions.iter().map(|a| format!("to fit in memory, nkrr will {a}")));
+        let settings = &Settings { max_points: plan.n.min(settings.max_points), m: plan.m.max(1), ..settings.clone() };
         let mut points: Vec<[f32; 3]> = cloud.positions.iter().map(|p| norm.forward(*p)).collect();
         if points.len() > settings.max_points {
             notices.push(format!(
@@ -396,8 +412,18 @@ impl Engine {
             crate::mesh::colour::transfer(&mut mesh, cloud, crate::mesh::colour::DEFAULT_K);
             timings.push(("colours", now() - t));
         }
+        // Units last: every stage above works in the cloud's own coordinates (the network's
+        // normalisation makes the scale irrelevant to it), and a similarity keeps normals.
+        let mut origin = cloud.origin;
+        if let Some(u) = settings.units.filter(|u| u.metres() != 1.0) {
+            let s = u.metres();
+            for p in &mut mesh.positions {
+                *p = p.map(|c| (c as f64 * s) as f32);
+            }
+            origin = origin.map(|c| c * s);
+        }
         (progress.borrow_mut())(&Stage::Done);
-        Ok(Reconstruction { mesh, origin: cloud.origin, trim, notices, extract: extraction.stats, tuning, timings })
+        Ok(Reconstruction { mesh, origin, trim, notices, extract: extraction.stats, tuning, timings })
     }
 
     /// X = F([P, P~]), y = [0, l(P~)] (paper eq. 6): the input points lie on the surface

@@ -72,7 +72,7 @@ async function openFile(file, source = null) {
   let cloud, bytes;
   try {
     bytes = new Uint8Array(await file.arrayBuffer());
-    cloud = nk.parse_ply(bytes);
+    cloud = nk.parse_cloud(bytes, file.name);
   } catch (e) {
     $('cloud-info').hidden = true;
     show(`Could not read ${file.name}: ${e.message ?? e}`, 'error');
@@ -83,9 +83,22 @@ async function openFile(file, source = null) {
   $('point-count').textContent = fmt.format(cloud.count);
   $('bounds').textContent = `[${num(b[0])}, ${num(b[1])}, ${num(b[2])}] – [${num(b[3])}, ${num(b[4])}, ${num(b[5])}]`;
   $('extent').textContent = `${num(b[3] - b[0])} × ${num(b[4] - b[1])} × ${num(b[5] - b[2])}`;
+  $('format').textContent = cloud.format;
   $('layout').textContent = cloud.layout;
+  const zeros = cloud.zero_normals;
+  $('attributes').textContent = [
+    cloud.has_colors ? 'colours (carried to the mesh)' : 'no colours',
+    cloud.has_normals
+      ? `normals (not needed, ignored${zeros ? `; ${fmt.format(zeros)} are zero` : ''})`
+      : 'no normals (none needed)',
+  ].join('; ');
+  const g = cloud.units_guess;
+  $('units-guess').textContent = g.stated ? `${g.units} (${g.reason})` : `${g.units ? `${g.units}?` : 'unknown'} — ${g.reason}`;
+  $('units-guess').classList.toggle('warn', g.warn);
   const ul = $('warnings');
-  ul.replaceChildren(...cloud.warnings.map((w) => Object.assign(document.createElement('li'), { textContent: w })));
+  const warnings = cloud.warnings;
+  if (g.warn) warnings.push(`Units: ${g.reason}. If they are millimetres, choose them under “Units of the cloud”: glTF is in metres.`);
+  ul.replaceChildren(...warnings.map((w) => Object.assign(document.createElement('li'), { textContent: w })));
   $('cloud-info').hidden = false;
   viewer.set_cloud(cloud); // also removes an earlier mesh
   if (viewer.drawn_points < cloud.count) {
@@ -98,7 +111,9 @@ async function openFile(file, source = null) {
   // An even subsample of at most 100k points stays on the page for the live trim.
   const points = cloud.sample_positions(100_000);
   cloud.free();
-  input = { name: file.name, file, source, points }; // the worker reads the file itself for each run
+  // The worker reads the file itself for each run; the preflight needs only the counts.
+  input = { name: file.name, file, source, points, count: cloud.count, colours: cloud.has_colors, unitsWarn: g.warn };
+  updatePreflight();
   updateShareLink();
   setResult(null);
   $('progress').hidden = true;
@@ -121,7 +136,25 @@ function readOptions() {
     o.m = Number($('m').value);
     o.steps = Number($('steps').value);
   }
+  if ($('units').value) o.units = $('units').value;
   return o;
+}
+
+/** The memory each stage will need on this adapter, for the loaded cloud and the settings. */
+function updatePreflight() {
+  const ul = $('preflight-lines');
+  if (!input || !nk || !viewer) { ul.replaceChildren(); return; }
+  let lines;
+  try {
+    lines = nk.preflight(input.count, input.colours, readOptions(), viewer);
+  } catch (e) {
+    lines = [`no estimate: ${e.message ?? e}`];
+  }
+  ul.replaceChildren(...lines.map((l) => Object.assign(document.createElement('li'), { textContent: l })));
+  const will = lines.filter((l) => l.startsWith('will '));
+  $('preflight-summary').textContent = will.length ? `Memory: ${will.join('; ')}` : 'Memory: fits this GPU';
+  $('preflight').classList.toggle('warn', will.length > 0);
+  $('preflight').open = will.length > 0;
 }
 
 /** True when WebGPU runs on a software adapter (SwiftShader, lavapipe): no GPU to tune on. */
@@ -358,9 +391,9 @@ function applyVisibility() {
   requestRender();
 }
 
-// ---- Share links: ?cloud=URL&method=…&resolution=…&m=…&steps=…&removeSmall=…&run ----------
+// ---- Share links: ?cloud=URL&method=…&resolution=…&m=…&steps=…&removeSmall=…&units=…&run ----
 
-const SETTING_PARAMS = { method: 'method', resolution: 'resolution', m: 'm', steps: 'steps', removeSmall: 'remove-small' };
+const SETTING_PARAMS = { method: 'method', resolution: 'resolution', m: 'm', steps: 'steps', removeSmall: 'remove-small', units: 'units' };
 
 /** Applies settings from the query, loads `cloud` from its URL, and runs when `run` is given. */
 async function openFromQuery() {
@@ -452,6 +485,7 @@ function wireInput() {
 
   $('method').addEventListener('change', syncMethodFields);
   $('settings').addEventListener('change', updateShareLink);
+  $('settings').addEventListener('change', updatePreflight);
   $('settings').addEventListener('submit', (e) => { e.preventDefault(); run(); });
   $('cancel').addEventListener('click', () => cancel());
   $('download').addEventListener('click', () => download('glb'));

@@ -6,9 +6,17 @@ const USAGE: &str = "\
 nkrr — surface reconstruction from raw point clouds
 
 USAGE:
-    nkrr info CLOUD.ply     point count, bounds, properties found, warnings
-    nkrr reconstruct CLOUD.ply -o OUT.glb|.ply|.obj|.stl [OPTIONS]
+    CLOUD is a point cloud in any of these formats, recognised by its content: PLY, text
+    (XYZ/PTS/CSV/TXT: x y z per line, optional intensity, r g b and nx ny nz), LAS/LAZ 1.0-1.4,
+    E57 (every scan, with its pose). Normals are never needed.
+
+    nkrr info CLOUD [reconstruct options]
+                            point count, bounds, a units guess, attributes, warnings, and the
+                            memory each stage needs on this machine's GPU (for the options)
+    nkrr reconstruct CLOUD -o OUT.glb|.ply|.obj|.stl [OPTIONS]
                             a watertight mesh of the cloud; the extension picks the format
+        --units mm|cm|m|in|ft      the cloud's length unit: the mesh is scaled to metres
+                                   (glTF's unit); without it coordinates are kept as they are
         --method nkrr|network      field to mesh (network: the prior alone)  [nkrr]
         --resolution N             marching-cubes resolution (16..=1024)     [128]
         --remove-small F           drop components below F x the largest's triangle count
@@ -47,10 +55,7 @@ USAGE:
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.first().map(String::as_str) {
-        Some("info") => match &args[1..] {
-            [path] => info(path),
-            _ => Err(usage("info takes exactly one PLY path")),
-        },
+        Some("info") => info(&args[1..]),
         Some("reconstruct") => reconstruct(&args[1..]),
         Some("bench") => bench(&args[1..]),
         Some("metrics") => metrics(&args[1..]),
@@ -89,13 +94,31 @@ fn fail(message: String) -> Failure {
     Failure { message, code: 1 }
 }
 
-fn info(path: &str) -> Result<(), Failure> {
+fn read_scan(path: &str) -> Result<(Vec<u8>, nkrr::io::ScanFile), Failure> {
     let bytes = std::fs::read(path).map_err(|e| fail(format!("cannot read {path}: {e}")))?;
-    let parsed = nkrr::io::ply::read_ply(&bytes).map_err(|e| fail(format!("{path}: {e}")))?;
-    let cloud = &parsed.cloud;
+    let scan = nkrr::io::read_cloud(&bytes, Some(path)).map_err(|e| fail(format!("{path}: {e}")))?;
+    Ok((bytes, scan))
+}
+
+fn info(args: &[String]) -> Result<(), Failure> {
+    let mut settings = nkrr::pipeline::Settings::default();
+    let mut path = None;
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--method" => settings.method = value(&mut it, a)?.parse().map_err(|e: String| usage(&e))?,
+            s if reconstruct_option(s, &mut it, &mut settings)? => {}
+            s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
+            s if path.is_none() => path = Some(s.to_string()),
+            s => return Err(usage(&format!("unexpected argument '{s}'"))),
+        }
+    }
+    let path = path.ok_or_else(|| usage("info needs a cloud file"))?;
+    let (bytes, scan) = read_scan(&path)?;
+    let cloud = &scan.cloud;
     println!("file:       {path} ({} bytes)", bytes.len());
-    println!("format:     {}", parsed.describe_layout());
-    println!("points:     {} (declared {})", cloud.len(), parsed.info.vertex_count);
+    println!("format:     {}", scan.describe_layout());
+    println!("points:     {} (in the file: {})", cloud.len(), scan.declared);
     if let Some(b) = cloud.bounds() {
         let e = b.extent();
         if cloud.origin != [0.0; 3] {
@@ -108,19 +131,54 @@ fn info(path: &str) -> Result<(), Failure> {
             println!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]);
         }
         println!("extent:     {} x {} x {}", e[0], e[1], e[2]);
+        let g = nkrr::units::guess(b.longest_side() as f64, scan.stated_units);
+        let given = settings.units.map(|u| format!("{u} (given)"));
+        println!(
+            "units:      {}: {}",
+            given.unwrap_or_else(|| match (scan.stated_units, g.units) {
+                (Some(u), _) => u.to_string(),
+                (None, Some(u)) => format!("{u}? (a guess: --units sets them)"),
+                (None, None) => "unknown (--units sets them)".to_string(),
+            }),
+            g.reason
+        );
     }
-    let props: Vec<String> =
-        parsed.info.vertex_properties.iter().map(|p| format!("{} {}", p.kind, p.name)).collect();
-    println!("properties: {}", props.join(", "));
-    println!("normals:    {}", if cloud.normals.is_some() { "yes (not needed: nkrr ignores them)" } else { "no (not needed)" });
-    println!("colours:    {}", if cloud.colors.is_some() { "yes" } else { "no" });
-    for c in &parsed.info.comments {
+    if let Some(ply) = &scan.ply {
+        let props: Vec<String> = ply.vertex_properties.iter().map(|p| format!("{} {}", p.kind, p.name)).collect();
+        println!("properties: {}", props.join(", "));
+    }
+    let zeros = scan.zero_normals();
+    println!(
+        "normals:    {}",
+        match (&cloud.normals, zeros) {
+            (None, _) => "no (not needed: nkrr needs no normals, oriented or not)".to_string(),
+            (Some(_), 0) => "yes (not needed: nkrr ignores them)".to_string(),
+            (Some(_), z) => format!("yes, {z} of them zero (not needed: nkrr ignores them)"),
+        }
+    );
+    println!("colours:    {}", if cloud.colors.is_some() { "yes (carried to the mesh's vertices)" } else { "no" });
+    for c in &scan.comments {
         println!("comment:    {c}");
     }
-    for w in parsed.warnings() {
+    preflight(cloud, &settings);
+    for w in scan.warnings() {
         println!("warning:    {w}");
     }
     Ok(())
+}
+
+/// The memory each stage will need on this machine's adapter, and what happens where it does
+/// not fit.
+fn preflight(cloud: &nkrr::cloud::PointCloud, settings: &nkrr::pipeline::Settings) {
+    let (limits, adapter) = match nkrr::gpu::Gpu::new_blocking() {
+        Ok(gpu) => (nkrr::plan::DeviceFacts::of(&gpu), gpu.info.name.clone()),
+        Err(e) => (nkrr::plan::DeviceFacts::webgpu_default(), format!("none ({e}); WebGPU's default limits assumed")),
+    };
+    let plan = nkrr::plan::memory_plan(cloud.len(), cloud.colors.is_some(), settings, &nkrr::net::Weights::prior().expect("the built-in prior loads").config().clone(), &limits);
+    println!("adapter:    {adapter}");
+    for line in plan.lines() {
+        println!("memory:     {line}");
+    }
 }
 
 fn gpu() -> Result<(), Failure> {
@@ -152,12 +210,18 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         .ok_or_else(|| usage(&format!("-o {output}: the extension must be .glb, .ply, .obj or .stl")))?;
 
     let t0 = nkrr::pipeline::now();
-    let bytes = std::fs::read(&input).map_err(|e| fail(format!("cannot read {input}: {e}")))?;
-    let parsed = nkrr::io::ply::read_ply(&bytes).map_err(|e| fail(format!("{input}: {e}")))?;
+    let (bytes, parsed) = read_scan(&input)?;
+    drop(bytes);
     for w in parsed.warnings() {
         eprintln!("warning: {w}");
     }
-    eprintln!("read {} points from {input}", parsed.cloud.len());
+    eprintln!("read {} points from {input} ({})", parsed.cloud.len(), parsed.describe_layout());
+    if let (None, Some(b)) = (settings.units, parsed.cloud.bounds()) {
+        let g = nkrr::units::guess(b.longest_side() as f64, parsed.stated_units);
+        if g.warn {
+            eprintln!("warning: no --units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): pass --units mm if they are millimetres", g.reason);
+        }
+    }
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
     eprintln!("GPU: {}", gpu.info.name);
     let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
@@ -257,6 +321,7 @@ fn reconstruct_option(a: &str, it: &mut std::slice::Iter<String>, settings: &mut
         "--euclidean" => settings.euclidean = true,
         "--krr-backend" => settings.krr_backend = value(it, a)?.parse().map_err(|e: String| usage(&e))?,
         "--no-colors" => settings.colors = false,
+        "--units" => settings.units = Some(value(it, a)?.parse().map_err(|e: String| usage(&e))?),
         "--trim" => {
             // The factor is optional: take the next argument only when it is a number.
             let f = match it.as_slice().first().and_then(|s| s.parse::<f32>().ok()) {

@@ -5,8 +5,13 @@ pub mod gltf;
 pub mod mesh_out;
 #[cfg(all(feature = "read-glb", not(target_arch = "wasm32")))]
 pub mod gltf_read;
+pub mod e57;
+pub mod las;
 pub mod obj;
 pub mod ply;
+pub mod scan;
 mod summary;
+pub mod text;
 
+pub use scan::{read_cloud, ScanError, ScanFile, ScanFormat};
 pub use summary::FEW_POINTS;

@@ -2,6 +2,7 @@
 //! worth a warning. Shared by `nkrr info` and the page, so both say the same.
 
 use super::ply::{PlyCloud, PlyProperty};
+use crate::cloud::PointCloud;
 
 /// Vertex properties the pipeline reads; everything else is reported as ignored.
 const USED: [&str; 10] = ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha"];
@@ -39,31 +40,20 @@ impl PlyCloud {
     /// Things the user should know before reconstructing, one sentence each.
     pub fn warnings(&self) -> Vec<String> {
         let mut w = Vec::new();
-        let n = self.cloud.len();
         if self.info.dropped_non_finite > 0 {
             w.push(format!(
                 "{} of {} points had NaN or infinite coordinates and were dropped",
                 self.info.dropped_non_finite, self.info.vertex_count
             ));
         }
-        if n == 1 {
-            w.push("the cloud has a single point: there is no surface to reconstruct".into());
-        } else if n < FEW_POINTS {
-            w.push(format!("only {n} points: the reconstruction will be very coarse"));
-        }
-        if n > 1 {
-            if let Some(b) = self.cloud.bounds() {
-                if b.longest_side() == 0.0 {
-                    w.push("all points are at the same position: there is no surface to reconstruct".into());
-                } else {
-                    let e = b.extent();
-                    let flat = e.iter().filter(|&&x| x <= b.longest_side() * 1e-6).count();
-                    if flat > 0 {
-                        w.push(format!("the cloud is flat in {flat} axis(es): a closed surface will be a thin slab"));
-                    }
-                }
-            }
-        }
+        w.extend(cloud_warnings(&self.cloud));
+        w.extend(self.format_notes());
+        w
+    }
+
+    /// What the file holds that the pipeline does not use.
+    pub fn format_notes(&self) -> Vec<String> {
+        let mut w = Vec::new();
         let ignored: Vec<&PlyProperty> =
             self.info.vertex_properties.iter().filter(|p| !USED.contains(&p.name.as_str())).collect();
         if !ignored.is_empty() {
@@ -77,4 +67,29 @@ impl PlyCloud {
         }
         w
     }
+}
+
+/// Warnings about the cloud itself, whatever its format: too few points, all at one place, flat.
+pub fn cloud_warnings(cloud: &PointCloud) -> Vec<String> {
+    let mut w = Vec::new();
+    let n = cloud.len();
+    if n == 1 {
+        w.push("the cloud has a single point: there is no surface to reconstruct".into());
+    } else if n < FEW_POINTS {
+        w.push(format!("only {n} points: the reconstruction will be very coarse"));
+    }
+    if n > 1 {
+        if let Some(b) = cloud.bounds() {
+            if b.longest_side() == 0.0 {
+                w.push("all points are at the same position: there is no surface to reconstruct".into());
+            } else {
+                let e = b.extent();
+                let flat = e.iter().filter(|&&x| x <= b.longest_side() * 1e-6).count();
+                if flat > 0 {
+                    w.push(format!("the cloud is flat in {flat} axis(es): a closed surface will be a thin slab"));
+                }
+            }
+        }
+    }
+    w
 }

@@ -13,7 +13,7 @@ use wasm_bindgen::prelude::*;
 
 use crate::gpu::Gpu;
 use crate::io::mesh_out::{self, MeshFormat};
-use crate::io::{gltf, ply};
+use crate::io::gltf;
 use crate::pipeline::{now, Engine, Method, PipelineError, Settings, Stage};
 
 thread_local! {
@@ -152,7 +152,7 @@ pub fn trim_indices(points: &[f32], positions: &[f32], indices: &[u32], factor: 
 pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Function) -> Result<JsValue, JsValue> {
     let t0 = now();
     let opts = Options::from_js(&options)?;
-    let parsed = ply::read_ply(&ply_bytes).map_err(|e| error("PlyError", &e.to_string()))?;
+    let parsed = crate::io::read_cloud(&ply_bytes, None).map_err(|e| error("PlyError", &e.to_string()))?;
     drop(ply_bytes);
     let _ = take_trouble();
     let engine = engine().await?;
@@ -224,6 +224,15 @@ pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Func
     let notices: Array = rec.notices.iter().map(|n| JsValue::from_str(n)).collect();
     for w in parsed.warnings() {
         notices.push(&JsValue::from_str(&w));
+    }
+    if let (None, Some(b)) = (opts.settings.units, parsed.cloud.bounds()) {
+        let g = crate::units::guess(b.longest_side() as f64, parsed.stated_units);
+        if g.warn {
+            notices.push(&JsValue::from_str(&format!(
+                "no units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): choose mm if they are millimetres",
+                g.reason
+            )));
+        }
     }
     if report.degenerate_triangles_dropped > 0 {
         notices.push(&JsValue::from_str(&format!(
@@ -313,11 +322,29 @@ impl Options {
         if let Some(c) = number(o, "labelClip", 0.0, 1e6)? {
             settings.label_clip = (c > 0.0).then_some(c as f32);
         }
+        if let Some(v) = field(o, "units")? {
+            if !v.is_null() && v.as_string().as_deref() != Some("") {
+                let s = v.as_string().ok_or_else(|| error("TypeError", "units must be a string"))?;
+                settings.units = Some(s.parse().map_err(|e: String| error("RangeError", &e))?);
+            }
+        }
         if let Some(v) = field(o, "name")? {
             name = Some(v.as_string().ok_or_else(|| error("TypeError", "name must be a string"))?);
         }
         Ok(Options { settings, name })
     }
+}
+
+/// The preflight for a cloud of `points` points (`colours`: whether it has colours)
+/// reconstructed with `options` (as for [`reconstruct`]) on the viewer's adapter (the worker's
+/// is the same adapter): one line per stage with its GPU and host memory, the limits, and what
+/// will be changed to fit. The reconstruction applies the same plan.
+#[wasm_bindgen]
+pub fn preflight(points: usize, colours: bool, options: JsValue, viewer: &super::Viewer) -> Result<Vec<String>, JsValue> {
+    let opts = Options::from_js(&options)?;
+    let weights = crate::net::Weights::prior().map_err(|e| error("NetError", &e.to_string()))?;
+    let facts = crate::plan::DeviceFacts::of(viewer.gpu());
+    Ok(crate::plan::memory_plan(points, colours, &opts.settings, weights.config(), &facts).lines())
 }
 
 /// `o[key]`, or None when it is undefined or null.

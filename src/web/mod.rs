@@ -1,16 +1,16 @@
-//! The browser entry points (wasm32 only): PLY parsing, the 3D viewer and the reconstruction
+//! The browser entry points (wasm32 only): cloud parsing (every format of [`crate::io::scan`]), the 3D viewer and the reconstruction
 //! (`api`, run in a Web Worker by `web/worker.js`), exposed to JavaScript through wasm-bindgen.
 //! The DOM (drop zone, panels, events) stays in `web/app.js`; Rust owns the data and the GPU.
 
 mod api;
 mod viewer;
 
-pub use api::{prepare_engine, reconstruct, simulate_device_loss};
+pub use api::{preflight, prepare_engine, reconstruct, simulate_device_loss};
 pub use viewer::Viewer;
 
 use wasm_bindgen::prelude::*;
 
-use crate::io::ply;
+use crate::io::scan::{self, ScanFile};
 
 #[wasm_bindgen(start)]
 pub fn start() {
@@ -20,7 +20,7 @@ pub fn start() {
 /// A parsed cloud, held on the Rust side; the page reads its summary through getters.
 #[wasm_bindgen]
 pub struct Cloud {
-    pub(crate) parsed: ply::PlyCloud,
+    pub(crate) parsed: ScanFile,
 }
 
 #[wasm_bindgen]
@@ -67,12 +67,62 @@ impl Cloud {
     /// A one-line description of the file's layout (format, properties).
     #[wasm_bindgen(getter)]
     pub fn layout(&self) -> String {
-        self.parsed.describe_layout()
+        self.parsed.describe_layout().to_string()
+    }
+
+    /// The format recognised from the content: "PLY", "text (XYZ/PTS/CSV)", "LAS/LAZ", "E57".
+    #[wasm_bindgen(getter)]
+    pub fn format(&self) -> String {
+        self.parsed.format.name().to_string()
+    }
+
+    /// Points whose normal is all zero (0 without normals; normals are never needed).
+    #[wasm_bindgen(getter)]
+    pub fn zero_normals(&self) -> usize {
+        self.parsed.zero_normals()
+    }
+
+    /// The cloud's offset from the origin in the file's coordinates (far-off clouds are read
+    /// relative to it; the GLB keeps it as the root translation): [x, y, z].
+    #[wasm_bindgen(getter)]
+    pub fn origin(&self) -> Vec<f64> {
+        self.parsed.cloud.origin.to_vec()
+    }
+
+    /// What the cloud's size suggests about its units: `{ units: "mm" | "m" | null, stated:
+    /// bool, warn: bool, reason }`; `warn` means millimetres are likely and no units were given.
+    #[wasm_bindgen(getter)]
+    pub fn units_guess(&self) -> JsValue {
+        let longest = self.parsed.cloud.bounds().map_or(0.0, |b| b.longest_side() as f64);
+        let g = crate::units::guess(longest, self.parsed.stated_units);
+        let o = js_sys::Object::new();
+        let set = |k: &str, v: JsValue| {
+            let _ = js_sys::Reflect::set(&o, &k.into(), &v);
+        };
+        set("units", g.units.map_or(JsValue::NULL, |u| u.code().into()));
+        set("stated", self.parsed.stated_units.is_some().into());
+        set("warn", g.warn.into());
+        set("reason", g.reason.into());
+        o.into()
     }
 }
 
-/// Parses PLY bytes; the error message says what is wrong and where.
+/// Parses a point cloud in any supported format (PLY, XYZ/PTS/CSV text, LAS/LAZ, E57), told
+/// apart by content; `name` (the file's name, optional) only adds a note when its extension
+/// disagrees. The error message says what is wrong and where.
+#[wasm_bindgen]
+pub fn parse_cloud(bytes: &[u8], name: Option<String>) -> Result<Cloud, JsError> {
+    scan::read_cloud(bytes, name.as_deref()).map(|parsed| Cloud { parsed }).map_err(|e| JsError::new(&e.to_string()))
+}
+
+/// [`parse_cloud`] without a name (kept for pages written against the PLY-only API).
 #[wasm_bindgen]
 pub fn parse_ply(bytes: &[u8]) -> Result<Cloud, JsError> {
-    ply::read_ply(bytes).map(|parsed| Cloud { parsed }).map_err(|e| JsError::new(&e.to_string()))
+    parse_cloud(bytes, None)
+}
+
+/// The file extensions the readers accept, for a file picker's `accept`.
+#[wasm_bindgen]
+pub fn cloud_extensions() -> Vec<String> {
+    scan::EXTENSIONS.iter().map(|e| format!(".{e}")).collect()
 }

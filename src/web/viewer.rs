@@ -119,6 +119,13 @@ pub struct Viewer {
     point_budget: usize,
 }
 
+impl Viewer {
+    /// The viewer's GPU (the page's adapter), for the preflight's limits.
+    pub(crate) fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+}
+
 #[wasm_bindgen]
 impl Viewer {
     /// Creates the view on `canvas`; fails with a readable message where WebGPU is missing.

@@ -1,0 +1,120 @@
+//! E57 (ASTM E2807), through the `e57` crate: every point set (scan) in the file, each with its
+//! pose applied, merged into one cloud in the file's common frame. Spherical scans are
+//! converted to Cartesian by the crate; points without a valid position are skipped and
+//! counted. Colours are normalised by each scan's colour limits. E57 is in metres.
+//!
+//! Before the crate parses anything, the header's XML length and the scans' declared point
+//! counts are checked against the file: bit-packed data can describe many points in few
+//! bytes, so the counts are capped the same way as LAZ's.
+
+use std::io::Cursor;
+
+use super::scan::{CloudBuilder, ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
+use crate::units::Units;
+
+/// Points an E57 file may declare per byte of file (as for LAZ: two orders of magnitude above
+/// what real scans need).
+const E57_POINTS_PER_BYTE: u64 = 64;
+
+fn check_header(b: &[u8]) -> Result<(), String> {
+    if b.len() < 48 {
+        return Err(format!("the file is {} bytes, shorter than an E57 header (48 bytes)", b.len()));
+    }
+    let u64_at = |at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap_or([0; 8]));
+    let (xml_offset, xml_length, page) = (u64_at(24), u64_at(32), u64_at(40));
+    let len = b.len() as u64;
+    if page != 1024 {
+        return Err(format!("the header declares a page size of {page} bytes (E57 uses 1024)"));
+    }
+    if xml_offset >= len || xml_length > len {
+        return Err(format!(
+            "the header declares {xml_length} bytes of XML at byte {xml_offset}, but the file has {len} bytes: it is truncated or not E57"
+        ));
+    }
+    Ok(())
+}
+
+/// Reads every scan of an E57 file into one cloud.
+pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
+    check_header(bytes)?;
+    let mut reader = ::e57::E57Reader::new(Cursor::new(bytes)).map_err(|e| e.to_string())?;
+    let scans = reader.pointclouds();
+    if scans.is_empty() {
+        return Err("the file holds no point sets (images only?)".into());
+    }
+    let declared: u64 = scans.iter().map(|s| s.records).fold(0u64, u64::saturating_add);
+    let limit = (bytes.len() as u64).saturating_mul(E57_POINTS_PER_BYTE).min(MAX_COMPRESSED_POINTS);
+    if declared > limit {
+        return Err(format!(
+            "the scans declare {declared} points in a {}-byte file; nkrr reads at most {limit} from it",
+            bytes.len()
+        ));
+    }
+    let colours = scans.iter().any(|s| s.has_color());
+    let mut out = CloudBuilder::new(false, colours);
+    out.reserve(declared.min(1 << 22) as usize);
+    let mut invalid = 0u64;
+    let mut comments = Vec::new();
+    let mut spherical = 0usize;
+    let mut posed = 0usize;
+    for (i, scan) in scans.iter().enumerate() {
+        if !scan.has_cartesian() && !scan.has_spherical() {
+            return Err(format!("scan {i} has neither Cartesian nor spherical coordinates"));
+        }
+        spherical += usize::from(!scan.has_cartesian());
+        posed += usize::from(scan.transform.is_some());
+        let name = scan.name.clone().unwrap_or_else(|| format!("scan {i}"));
+        comments.push(format!("{name}: {} points{}", scan.records, if scan.transform.is_some() { ", posed" } else { "" }));
+        let mut points = reader.pointcloud_simple(scan).map_err(|e| format!("{name}: {e}"))?;
+        points.apply_pose(true);
+        points.spherical_to_cartesian(true);
+        points.normalize_color(true);
+        points.intensity_to_color(false);
+        let mut read = 0u64;
+        for p in points {
+            let p = p.map_err(|e| format!("{name}, point {read}: {e}"))?;
+            read += 1;
+            if read > scan.records {
+                return Err(format!("{name} yields more points than the {} it declares", scan.records));
+            }
+            let ::e57::CartesianCoordinate::Valid { x, y, z } = p.cartesian else {
+                invalid += 1;
+                continue;
+            };
+            let c = p.color.map_or([0, 0, 0, 255], |c| {
+                let ch = [c.red, c.green, c.blue].map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8);
+                [ch[0], ch[1], ch[2], 255]
+            });
+            out.push([x, y, z], [0.0; 3], c);
+        }
+    }
+    if out.len() == 0 {
+        return Err(format!("none of the {declared} points has a valid finite position"));
+    }
+    let mut notes = Vec::new();
+    if invalid > 0 {
+        notes.push(format!("{invalid} of {declared} points have no valid position (invalid or direction-only) and were skipped"));
+    }
+    let mut parts = vec![format!("E57, {} scan{}", scans.len(), if scans.len() == 1 { "" } else { "s" })];
+    if posed > 0 {
+        parts.push(format!("{posed} with a pose, applied"));
+    }
+    if spherical > 0 {
+        parts.push(format!("{spherical} spherical, converted"));
+    }
+    if colours {
+        parts.push("colours".into());
+    }
+    let dropped = out.dropped;
+    Ok(ScanFile {
+        format: ScanFormat::E57,
+        cloud: out.finish(),
+        declared,
+        dropped_non_finite: dropped,
+        layout: parts.join("; "),
+        comments,
+        notes,
+        stated_units: Some(Units::Metres),
+        ply: None,
+    })
+}

@@ -1,0 +1,493 @@
+//! Text clouds: one point per line, as XYZ, PTS, CSV and TXT exports write them.
+//!
+//! Values are separated by whitespace, commas or semicolons. Lines before the first line of
+//! numbers are headers (a CSV's column names are used to find x, y, z, colours and normals);
+//! lines starting with `#` or `//` are comments anywhere; a lone integer before the data is a
+//! PTS point count. Without names, the columns are read by count: `x y z`, then an intensity
+//! when the count is 4, 7 or 10 (PTS and CloudCompare order), then up to two triples, each
+//! taken as normals when they are unit vectors and as colours when they are 0–255 integers,
+//! 0–1 fractions or 16-bit values (judged on the first 1000 points).
+//! Every data line must have as many values as the first; an error names the line.
+
+use std::fmt;
+
+use super::scan::{CloudBuilder, ScanFile, ScanFormat};
+
+/// Why a text cloud could not be read; `line` is 1-based (0 when it is about the whole file).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TextError {
+    pub line: usize,
+    pub message: String,
+}
+
+impl fmt::Display for TextError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.line == 0 {
+            write!(f, "text cloud: {}", self.message)
+        } else {
+            write!(f, "text cloud, line {}: {}", self.line, self.message)
+        }
+    }
+}
+
+impl std::error::Error for TextError {}
+
+fn err(line: usize, message: impl Into<String>) -> TextError {
+    TextError { line, message: message.into() }
+}
+
+/// Header lines allowed before the data: beyond this the file is taken for something else.
+const MAX_HEADER_LINES: usize = 64;
+/// Data lines looked at to decide what the columns hold.
+const SAMPLE_LINES: usize = 1000;
+/// Values per line beyond which a line is not a point.
+const MAX_COLUMNS: usize = 64;
+
+/// Whether `bytes` start like a text file: no NUL and almost only printable ASCII in the first
+/// 4 KB, with at least one digit.
+pub fn looks_like_text(bytes: &[u8]) -> bool {
+    let head = &bytes[..bytes.len().min(4096)];
+    let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
+    if head.contains(&0) || !head.iter().any(u8::is_ascii_digit) {
+        return false;
+    }
+    let odd = head.iter().filter(|&&b| !(b.is_ascii_graphic() || b.is_ascii_whitespace())).count();
+    odd * 50 <= head.len()
+}
+
+fn tokens(line: &str) -> impl Iterator<Item = &str> {
+    line.split(|c: char| c == ',' || c == ';' || c.is_ascii_whitespace()).filter(|t| !t.is_empty())
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Role {
+    X,
+    Y,
+    Z,
+    R,
+    G,
+    B,
+    Nx,
+    Ny,
+    Nz,
+    Ignored,
+}
+
+/// What a column name says it holds.
+fn role_of_name(name: &str) -> Role {
+    let n = name.trim_matches(|c: char| c == '"' || c == '\'' || c == '/' || c == '/').to_ascii_lowercase();
+    match n.as_str() {
+        "x" | "//x" | "px" | "pos_x" => Role::X,
+        "y" | "py" | "pos_y" => Role::Y,
+        "z" | "pz" | "pos_z" => Role::Z,
+        "r" | "red" | "diffuse_red" => Role::R,
+        "g" | "green" | "diffuse_green" => Role::G,
+        "b" | "blue" | "diffuse_blue" => Role::B,
+        "nx" | "normal_x" | "normalx" | "n_x" => Role::Nx,
+        "ny" | "normal_y" | "normaly" | "n_y" => Role::Ny,
+        "nz" | "normal_z" | "normalz" | "n_z" => Role::Nz,
+        _ => Role::Ignored,
+    }
+}
+
+/// Column roles from a header's names, when they name x, y and z.
+fn roles_from_names(names: &[String], columns: usize) -> Option<Vec<Role>> {
+    if names.len() != columns {
+        return None;
+    }
+    let roles: Vec<Role> = names.iter().map(|n| role_of_name(n)).collect();
+    let has = |r: Role| roles.iter().filter(|&&x| x == r).count() == 1;
+    if !(has(Role::X) && has(Role::Y) && has(Role::Z)) {
+        return None;
+    }
+    // Partial triples are ignored: a colour needs all three channels.
+    let keep = |trio: [Role; 3]| trio.iter().all(|&r| has(r));
+    let (colour, normal) = (keep([Role::R, Role::G, Role::B]), keep([Role::Nx, Role::Ny, Role::Nz]));
+    Some(
+        roles
+            .into_iter()
+            .map(|r| match r {
+                Role::R | Role::G | Role::B if !colour => Role::Ignored,
+                Role::Nx | Role::Ny | Role::Nz if !normal => Role::Ignored,
+                r => r,
+            })
+            .collect(),
+    )
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Triple {
+    Normals,
+    Colours,
+    Unknown,
+}
+
+/// What three sampled columns look like.
+fn classify(samples: &[[f64; 3]]) -> Triple {
+    if samples.is_empty() {
+        return Triple::Unknown;
+    }
+    let unit = samples
+        .iter()
+        .filter(|v| {
+            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            (0.95..=1.05).contains(&n) || n == 0.0
+        })
+        .count();
+    let any_negative = samples.iter().flatten().any(|&c| c < 0.0);
+    if unit * 20 >= samples.len() * 19 && (any_negative || samples.iter().flatten().any(|&c| c.fract() != 0.0)) {
+        return Triple::Normals;
+    }
+    let all = |f: &dyn Fn(f64) -> bool| samples.iter().flatten().all(|&c| f(c));
+    if all(&|c| (0.0..=65535.0).contains(&c) && c.fract() == 0.0) || all(&|c| (0.0..=1.0).contains(&c)) {
+        return Triple::Colours;
+    }
+    Triple::Unknown
+}
+
+/// Column roles from the sampled values, for files without usable names.
+fn roles_from_values(samples: &[Vec<f64>], columns: usize) -> Vec<Role> {
+    let mut roles = vec![Role::Ignored; columns];
+    roles[..3].copy_from_slice(&[Role::X, Role::Y, Role::Z]);
+    // 4, 7 and 10 columns: an intensity follows x y z (PTS; CloudCompare's "x y z i r g b ...").
+    let start = if columns % 3 == 1 { 4 } else { 3 };
+    let (mut colour, mut normal) = (false, false);
+    let mut at = start;
+    while at + 3 <= columns {
+        let trio: Vec<[f64; 3]> = samples.iter().map(|s| [s[at], s[at + 1], s[at + 2]]).collect();
+        match classify(&trio) {
+            Triple::Normals if !normal => {
+                roles[at..at + 3].copy_from_slice(&[Role::Nx, Role::Ny, Role::Nz]);
+                normal = true;
+            }
+            Triple::Colours if !colour => {
+                roles[at..at + 3].copy_from_slice(&[Role::R, Role::G, Role::B]);
+                colour = true;
+            }
+            _ => {}
+        }
+        at += 3;
+    }
+    roles
+}
+
+/// How colour values map to 0..=255, from the sampled maximum.
+fn colour_scale(max: f64, any_fraction: bool) -> f64 {
+    if max <= 1.0 && (any_fraction || max < 1.0) {
+        255.0
+    } else if max > 255.0 {
+        1.0 / 257.0
+    } else {
+        1.0
+    }
+}
+
+/// One line of the file, classified.
+enum Line<'a> {
+    Blank,
+    Comment(&'a str),
+    Values(usize),
+    Words,
+}
+
+fn classify_line<'a>(line: &'a str, values: &mut Vec<f64>) -> Line<'a> {
+    let t = line.trim();
+    if t.is_empty() {
+        return Line::Blank;
+    }
+    if let Some(c) = t.strip_prefix('#').or_else(|| t.strip_prefix("//")) {
+        // "//X,Y,Z,R,G,B" is CloudCompare's header, not a comment.
+        if !(t.starts_with("//") && tokens(c).next().is_some_and(|w| role_of_name(w) == Role::X)) {
+            return Line::Comment(c.trim());
+        }
+    }
+    values.clear();
+    for tok in tokens(t) {
+        match tok.parse::<f64>() {
+            Ok(v) if values.len() < MAX_COLUMNS => values.push(v),
+            _ => return Line::Words,
+        }
+    }
+    Line::Values(values.len())
+}
+
+struct Lines<'a> {
+    text: &'a str,
+    pos: usize,
+    number: usize,
+}
+
+impl<'a> Iterator for Lines<'a> {
+    type Item = (usize, &'a str);
+    fn next(&mut self) -> Option<(usize, &'a str)> {
+        if self.pos >= self.text.len() {
+            return None;
+        }
+        let rest = &self.text[self.pos..];
+        let end = rest.find('\n').unwrap_or(rest.len());
+        self.pos += end + 1;
+        self.number += 1;
+        Some((self.number, &rest[..end]))
+    }
+}
+
+/// Reads a text cloud.
+pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        let line = bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count() + 1;
+        err(line, "not text: invalid UTF-8 (is this a binary file with a text extension?)")
+    })?;
+
+    // Pass 1: header, comments, the column count, and a sample of the values.
+    let mut values = Vec::new();
+    let mut header: Option<Vec<String>> = None;
+    let mut comments = Vec::new();
+    let mut pts_count: Option<u64> = None;
+    let mut columns = 0usize;
+    let mut first_data_line = 0usize;
+    let mut samples: Vec<Vec<f64>> = Vec::new();
+    let mut header_lines = 0usize;
+    for (number, line) in (Lines { text, pos: 0, number: 0 }) {
+        match classify_line(line, &mut values) {
+            Line::Blank => {}
+            Line::Comment(c) => {
+                if comments.len() < 16 {
+                    comments.push(c.chars().take(200).collect());
+                }
+            }
+            Line::Words if columns == 0 => {
+                header_lines += 1;
+                if header_lines > MAX_HEADER_LINES {
+                    return Err(err(number, format!("{MAX_HEADER_LINES} lines without a point: this is not a text cloud")));
+                }
+                let line = line.trim().trim_start_matches("//");
+                header = Some(tokens(line).map(str::to_string).collect());
+            }
+            Line::Words => {
+                let shown: String = line.trim().chars().take(60).collect();
+                return Err(err(number, format!("expected {columns} numbers, found '{shown}'")));
+            }
+            Line::Values(1) if columns == 0 && pts_count.is_none() && values[0].fract() == 0.0 && values[0] >= 0.0 => {
+                // PTS: the point count on its own line.
+                pts_count = Some(values[0] as u64);
+            }
+            Line::Values(c) if columns == 0 => {
+                if c < 3 {
+                    return Err(err(number, format!("{c} value(s); a point needs at least x y z")));
+                }
+                columns = c;
+                first_data_line = number;
+                samples.push(values.clone());
+            }
+            Line::Values(c) if c != columns => {
+                return Err(err(
+                    number,
+                    format!("{c} values, but the first point (line {first_data_line}) has {columns}"),
+                ));
+            }
+            Line::Values(_) => {
+                samples.push(values.clone());
+                if samples.len() >= SAMPLE_LINES {
+                    break;
+                }
+            }
+        }
+    }
+    if columns == 0 {
+        return Err(err(0, "no line of numbers: there are no points"));
+    }
+
+    let named = header.as_deref().and_then(|h| roles_from_names(h, columns));
+    let roles = named.clone().unwrap_or_else(|| roles_from_values(&samples, columns));
+    let col = |r: Role| roles.iter().position(|&x| x == r);
+    let (ix, iy, iz) = (col(Role::X).unwrap_or(0), col(Role::Y).unwrap_or(1), col(Role::Z).unwrap_or(2));
+    let normals = match (col(Role::Nx), col(Role::Ny), col(Role::Nz)) {
+        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+        _ => None,
+    };
+    let colours = match (col(Role::R), col(Role::G), col(Role::B)) {
+        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+        _ => None,
+    };
+    let scale = colours.map(|c| {
+        let vals = samples.iter().flat_map(|s| c.map(|i| s[i]));
+        let (max, frac) = vals.fold((0f64, false), |(m, f), v| (m.max(v), f || v.fract() != 0.0));
+        colour_scale(max, frac)
+    });
+
+    // Pass 2: every point.
+    let mut out = CloudBuilder::new(normals.is_some(), colours.is_some());
+    // At least 6 bytes ("0 0 0\n") per point: a bound the input justifies.
+    out.reserve((text.len() / 6).min(1 << 22));
+    let mut declared = 0u64;
+    for (number, line) in (Lines { text, pos: 0, number: 0 }) {
+        if number < first_data_line {
+            continue;
+        }
+        match classify_line(line, &mut values) {
+            Line::Blank | Line::Comment(_) => {}
+            Line::Words => {
+                let shown: String = line.trim().chars().take(60).collect();
+                return Err(err(number, format!("expected {columns} numbers, found '{shown}'")));
+            }
+            Line::Values(c) if c != columns => {
+                return Err(err(
+                    number,
+                    format!("{c} values, but the first point (line {first_data_line}) has {columns}"),
+                ));
+            }
+            Line::Values(_) => {
+                declared += 1;
+                let n = normals.map_or([0.0; 3], |n| n.map(|i| values[i] as f32));
+                let c = match (colours, scale) {
+                    (Some(c), Some(s)) => {
+                        let ch = c.map(|i| (values[i] * s).round().clamp(0.0, 255.0) as u8);
+                        [ch[0], ch[1], ch[2], 255]
+                    }
+                    _ => [0, 0, 0, 255],
+                };
+                out.push([values[ix], values[iy], values[iz]], n, c);
+            }
+        }
+    }
+    if out.len() == 0 {
+        return Err(err(0, format!("all {declared} points have NaN or infinite coordinates")));
+    }
+
+    let mut notes = Vec::new();
+    if let Some(n) = pts_count {
+        if n != declared {
+            notes.push(format!("the file's point count says {n}, but it holds {declared} points"));
+        }
+    }
+    let ignored: Vec<String> = roles
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| **r == Role::Ignored)
+        .map(|(i, _)| match (&named, &header) {
+            (Some(_), Some(h)) => h[i].clone(),
+            _ if i == 3 && columns % 3 == 1 => "column 4 (intensity)".to_string(),
+            _ => format!("column {}", i + 1),
+        })
+        .collect();
+    if !ignored.is_empty() {
+        notes.push(format!("ignored columns: {}", ignored.join(", ")));
+    }
+    let sep = if text[..text.len().min(4096)].contains(',') {
+        "comma-separated"
+    } else if text[..text.len().min(4096)].contains(';') {
+        "semicolon-separated"
+    } else {
+        "whitespace-separated"
+    };
+    let mut parts = vec![format!(
+        "text, {columns} columns ({}), {sep}",
+        if named.is_some() { "named by the header" } else { "by position" }
+    )];
+    if normals.is_some() {
+        parts.push("normals (not needed, ignored by the reconstruction)".into());
+    }
+    if colours.is_some() {
+        parts.push("colours".into());
+    }
+    let dropped = out.dropped;
+    Ok(ScanFile {
+        format: ScanFormat::Text,
+        cloud: out.finish(),
+        declared,
+        dropped_non_finite: dropped,
+        layout: parts.join("; "),
+        comments,
+        notes,
+        stated_units: None,
+        ply: None,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read(s: &str) -> ScanFile {
+        read_text(s.as_bytes()).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    #[test]
+    fn plain_xyz() {
+        let f = read("0 0 0\n1 0 0\n0 1 0\n0 0 1\n");
+        assert_eq!(f.cloud.positions, vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        assert!(f.cloud.colors.is_none() && f.cloud.normals.is_none());
+        assert_eq!(f.declared, 4);
+    }
+
+    #[test]
+    fn csv_with_named_columns_in_any_order() {
+        let f = read("red,x,y,z,green,blue,intensity\n255,1,2,3,0,128,7\n10,4,5,6,20,30,7\n");
+        assert_eq!(f.cloud.positions, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        assert_eq!(f.cloud.colors, Some(vec![[255, 0, 128, 255], [10, 20, 30, 255]]));
+        assert!(f.notes.iter().any(|n| n.contains("intensity")), "{:?}", f.notes);
+    }
+
+    #[test]
+    fn pts_count_intensity_and_colours() {
+        let f = read("3\n1 2 3 -200 10 20 30\n4 5 6 100 40 50 60\n7 8 9 0 70 80 90\n");
+        assert_eq!(f.cloud.len(), 3);
+        assert_eq!(f.cloud.colors.as_ref().unwrap()[2], [70, 80, 90, 255]);
+        assert_eq!(f.notes, vec!["ignored columns: column 4 (intensity)".to_string()]);
+    }
+
+    #[test]
+    fn six_columns_are_normals_or_colours_by_value() {
+        let n = read("0 0 0 0 0 1\n1 0 0 0.6 0.8 0\n0 1 0 -1 0 0\n");
+        assert!(n.cloud.normals.is_some() && n.cloud.colors.is_none());
+        let c = read("0 0 0 0 0 1\n1 0 0 12 200 0\n0 1 0 255 0 0\n");
+        assert!(c.cloud.colors.is_some() && c.cloud.normals.is_none());
+        assert_eq!(c.cloud.colors.as_ref().unwrap()[1], [12, 200, 0, 255]);
+        let f = read("0 0 0 0.5 0.25 1\n1 0 0 0 1 0.1\n");
+        assert_eq!(f.cloud.colors.as_ref().unwrap()[0], [128, 64, 255, 255]);
+    }
+
+    #[test]
+    fn nine_columns_colour_then_normals() {
+        let f = read("0;0;0;10;20;30;0;0;1\n1;0;0;40;50;60;0;-1;0\n");
+        assert_eq!(f.cloud.colors.as_ref().unwrap()[1], [40, 50, 60, 255]);
+        assert_eq!(f.cloud.normals.as_ref().unwrap()[1], [0.0, -1.0, 0.0]);
+    }
+
+    #[test]
+    fn errors_name_the_line() {
+        let e = read_text(b"1 2 3\n4 5\n").unwrap_err();
+        assert_eq!(e.line, 2);
+        assert!(e.to_string().contains("line 2"), "{e}");
+        let e = read_text(b"1 2 3\n4 5 six\n").unwrap_err();
+        assert_eq!(e.line, 2);
+        assert!(read_text(b"x y z\n").is_err());
+        assert!(read_text(b"1 2\n3 4\n").is_err());
+        assert!(read_text(b"1 2 3\n\xff\xfe 4 5\n").is_err());
+    }
+
+    #[test]
+    fn far_coordinates_and_non_finite_points() {
+        let f = read("5000000.25 4000000.5 10\n5000001.25 4000000.5 10\nnan 0 0\n5000000.25 4000001.5 11\n");
+        assert_eq!(f.cloud.origin, [5000000.0, 4000001.0, 0.0]);
+        assert_eq!(f.cloud.positions[0], [0.25, -0.5, 10.0]);
+        assert_eq!(f.dropped_non_finite, 1);
+        assert_eq!(f.declared, 4);
+        assert!(read_text(b"nan 0 0\ninf 1 1\n").is_err());
+    }
+
+    #[test]
+    fn comments_blank_lines_and_crlf() {
+        let f = read("# scanner export\r\n\r\n//X,Y,Z\r\n1,2,3\r\n4,5,6\r\n");
+        assert_eq!(f.cloud.len(), 2);
+        assert_eq!(f.comments, vec!["scanner export".to_string()]);
+    }
+
+    #[test]
+    fn text_detection() {
+        assert!(looks_like_text(b"1 2 3\n"));
+        assert!(!looks_like_text(b"\x00\x01\x02 1"));
+        assert!(!looks_like_text(b"hello world"));
+    }
+}
