@@ -5,7 +5,8 @@
 #   scripts/setup.sh apt      Debian packages (wasm toolchain, lavapipe, chromium)
 #   scripts/setup.sh wasm     wasm-bindgen-cli + trunk (pinned, from crates.io)
 #   scripts/setup.sh npm      node tools (binaryen wasm-opt, gltf-validator, playwright-core)
-#   scripts/setup.sh python   .venv with the training requirements (PyTorch CPU)
+#   scripts/setup.sh python   .venv with the training requirements (PyTorch CPU), and
+#                             .venv-formats (laspy/lazrs, pye57, trimesh: fixtures, output loading)
 #   scripts/setup.sh all      everything
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -68,6 +69,15 @@ step_python() {
         .venv/bin/pip install -q --disable-pip-version-check -r training/requirements.txt
     else
         log "python: all present"
+    fi
+    if [ ! -x .venv-formats/bin/python ]; then
+        log "python: creating .venv-formats"
+        python3 -m venv .venv-formats
+    fi
+    if ! .venv-formats/bin/python -c 'import laspy, lazrs, pye57, trimesh, pytest' 2>/dev/null; then
+        log "python: installing the format fixtures' writers and trimesh"
+        .venv-formats/bin/pip install -q --disable-pip-version-check \
+            -r tests/fixtures/formats/requirements.txt -r tests/formats/requirements.txt
     fi
 }
 

@@ -13,6 +13,12 @@ bash scripts/setup.sh all
 echo "== native tests (cargo test)"
 cargo test
 
+echo "== scan-format fixtures: the committed files are what laspy/lazrs and pye57 write"
+.venv-formats/bin/python tests/fixtures/formats/make_fixtures.py --check
+
+echo "== output meshes load in trimesh (GLB, PLY, OBJ, STL)"
+NKRR_BIN=target/debug/nkrr .venv-formats/bin/python -m pytest -q -p no:cacheprovider tests/formats
+
 echo "== training smoke test"
 .venv/bin/python -m pytest -q -p no:cacheprovider training/test_smoke.py
 

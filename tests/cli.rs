@@ -28,7 +28,14 @@ fn temp_file(name: &str, bytes: &[u8]) -> String {
 fn info_reports_count_bounds_and_properties() {
     let (code, out, err) = nkrr(&["info", &eval("spot-10k.ply")]);
     assert_eq!(code, 0, "{err}");
-    assert!(out.contains("points:     10000 (declared 10000)"), "{out}");
+    assert!(out.contains("points:     10000 (in the file: 10000)"), "{out}");
+    assert!(out.contains("units:      m? (a guess: --units sets them): the longest side is 1.7"), "{out}");
+    assert!(out.contains("normals:    no (not needed"), "{out}");
+    // The preflight: every stage, the adapter's limit, and that it fits as set.
+    for stage in ["load", "features", "pairs", "tuning", "meshing"] {
+        assert!(out.contains(&format!("memory:     {stage}")), "{stage}: {out}");
+    }
+    assert!(out.contains("memory:     fits: 10000 points, m = 500, as set"), "{out}");
     assert!(out.contains("binary_little_endian; x y z: float"), "{out}");
     assert!(out.contains("bounds:"), "{out}");
     assert!(out.contains("colours:    no"), "{out}");
@@ -41,7 +48,7 @@ fn info_warns_about_dropped_points_and_extra_properties() {
     let path = temp_file("odd.ply", ply.as_bytes());
     let (code, out, err) = nkrr(&["info", &path]);
     assert_eq!(code, 0, "{err}");
-    assert!(out.contains("points:     3 (declared 4)"), "{out}");
+    assert!(out.contains("points:     3 (in the file: 4)"), "{out}");
     assert!(out.contains("1 of 4 points had NaN"), "{out}");
     assert!(out.contains("ignored vertex properties: intensity"), "{out}");
     assert!(out.contains("skipped elements: face (1)"), "{out}");
@@ -67,6 +74,15 @@ fn info_on_missing_file_and_bad_usage() {
     assert!(err.contains("unknown command 'frobnicate'") && err.contains("USAGE"), "{err}");
     let (code, _, _) = nkrr(&["info"]);
     assert_eq!(code, 2);
+}
+
+#[test]
+fn info_says_what_will_be_done_where_memory_does_not_fit() {
+    // m = 5000 on the GPU objective: the m×m accumulator (300 MB) exceeds a 128 MiB binding
+    // (lavapipe's limit); the plan lowers m and says so.
+    let (code, out, err) = nkrr(&["info", &eval("spot-3k.ply"), "--krr-backend", "gpu", "--m", "5000"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("memory:     will use m = "), "{out}");
 }
 
 /// The closed box [lo, hi] as OBJ text (12 triangles), optionally without its last triangle.

@@ -194,17 +194,39 @@ fn glb_bounds(path: &Path) -> ([f64; 3], [f64; 3]) {
     (lo, hi)
 }
 
+/// Positions (with the root translation added, f64) and COLOR_0 (if any) of a GLB.
+fn glb_vertices(path: &Path) -> (Vec<[f64; 3]>, Option<Vec<[u8; 4]>>) {
+    let (doc, buffers, _) = gltf::import(path).unwrap();
+    let node = doc.nodes().next().unwrap();
+    let t = node.transform().decomposed().0.map(f64::from);
+    let prim = node.mesh().unwrap().primitives().next().unwrap();
+    let reader = prim.reader(|b| Some(&buffers[b.index()]));
+    let positions = reader.read_positions().unwrap().map(|p| [0, 1, 2].map(|a| p[a] as f64 + t[a])).collect();
+    let colours = reader.read_colors(0).map(|c| c.into_rgba_u8().collect());
+    (positions, colours)
+}
+
+/// `nkrr reconstruct` on every fixture (each LAS point format, each LAZ, each E57) and on a
+/// text export: the mesh lies where the cloud does (offsets and poses applied), and where the
+/// cloud has colours the mesh's COLOR_0 matches the manifest's colour ramp at each vertex; the
+/// coloured GLBs pass the Khronos validator.
 #[test]
 fn reconstruct_reads_every_format() {
-    let csv = out_dir().join("spot.xyz");
+    let m = manifest();
+    let formula = &m["colour_formula"];
     let spot = spot();
-    std::fs::write(&csv, spot.iter().map(|p| format!("{} {} {}\n", p[0], p[1], p[2])).collect::<String>()).unwrap();
-    let cases = [
-        (fixtures().join("spot-las12-pf3.las"), [5e6, 5e6, 100.0]),
-        (fixtures().join("spot-las14-pf7.laz"), [5e6, 5e6, 100.0]),
-        (fixtures().join("spot-two-scans.e57"), [0.0; 3]),
-        (csv, [0.0; 3]),
-    ];
+    let xyz = out_dir().join("spot.xyz");
+    std::fs::write(&xyz, spot.iter().map(|p| format!("{} {} {}\n", p[0], p[1], p[2])).collect::<String>()).unwrap();
+    let mut cases: Vec<(PathBuf, [f64; 3], bool)> = m["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            let offset = f3(&f["coordinate_offset_added"]);
+            (fixtures().join(f["path"].as_str().unwrap()), offset, f["colour"].as_bool().unwrap())
+        })
+        .collect();
+    cases.push((xyz, [0.0; 3], false));
     let (lo0, hi0) = spot.iter().fold(([f64::MAX; 3], [f64::MIN; 3]), |(mut lo, mut hi), p| {
         for a in 0..3 {
             lo[a] = lo[a].min(p[a]);
@@ -212,27 +234,45 @@ fn reconstruct_reads_every_format() {
         }
         (lo, hi)
     });
-    for (input, offset) in cases {
-        let out = out_dir().join(format!("{}.glb", input.file_name().unwrap().to_string_lossy()));
-        let (ok, log) = run(&[
-            "reconstruct",
-            input.to_str().unwrap(),
-            "--method",
-            "network",
-            "--resolution",
-            "48",
-            "-o",
-            out.to_str().unwrap(),
-        ]);
-        assert!(ok, "{}: {log}", input.display());
-        // The mesh lies where the cloud does, offset and poses included (within a few voxels).
-        let (lo, hi) = glb_bounds(&out);
+    let mut coloured = Vec::new();
+    for (input, offset, has_colour) in cases {
+        let name = input.file_name().unwrap().to_string_lossy().into_owned();
+        let out = out_dir().join(format!("{name}.glb"));
+        let (ok, log) = run(&["reconstruct", input.to_str().unwrap(), "--method", "network", "--resolution", "40", "-o", out.to_str().unwrap()]);
+        assert!(ok, "{name}: {log}");
+        let (positions, colours) = glb_vertices(&out);
+        let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
+        for p in &positions {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a] - offset[a]);
+                hi[a] = hi[a].max(p[a] - offset[a]);
+            }
+        }
+        // Points from half the shape (formats 4, 5, 9, 10 hold every other point) still span it.
         for a in 0..3 {
             let tol = 0.08 * (hi0[a] - lo0[a]);
-            assert!((lo[a] - (lo0[a] + offset[a])).abs() < tol, "{}: axis {a} min {} vs {}", input.display(), lo[a], lo0[a] + offset[a]);
-            assert!((hi[a] - (hi0[a] + offset[a])).abs() < tol, "{}: axis {a} max {} vs {}", input.display(), hi[a], hi0[a] + offset[a]);
+            assert!((lo[a] - lo0[a]).abs() < tol && (hi[a] - hi0[a]).abs() < tol, "{name}: axis {a}: [{}, {}] vs [{}, {}]", lo[a], hi[a], lo0[a], hi0[a]);
+        }
+        assert_eq!(colours.is_some(), has_colour, "{name}");
+        if let Some(colours) = colours {
+            // The ramp is linear in position: a vertex's colour should be the ramp's there.
+            let err: f64 = positions
+                .iter()
+                .zip(&colours)
+                .map(|(p, c)| {
+                    let q = [0, 1, 2].map(|a| p[a] - offset[a]);
+                    let want = colour(q, formula);
+                    (0..3).map(|a| (c[a] as f64 - want[a] as f64).abs()).sum::<f64>() / 3.0
+                })
+                .sum::<f64>()
+                / positions.len() as f64;
+            assert!(err < 6.0, "{name}: mean colour error {err:.2}/255");
+            eprintln!("{name}: {} vertices, mean colour error {err:.2}/255", positions.len());
+            coloured.push(out);
         }
     }
+    let (ok, text) = common::run_validator(&coloured);
+    assert!(ok, "Khronos validator: {text}");
 }
 
 #[test]
