@@ -66,6 +66,8 @@ pub struct MemoryPlan {
     pub n: usize,
     /// Inducing points the regression will use (nkrr).
     pub m: usize,
+    /// Whether the method is nkrr (m and the tuning apply).
+    pub nkrr: bool,
     pub krr_on_gpu: bool,
     pub stages: Vec<StagePlan>,
     pub binding_limit: u64,
@@ -116,7 +118,8 @@ impl MemoryPlan {
             mib(self.binding_limit)
         ));
         if self.actions.is_empty() {
-            out.push(format!("fits: {} points, m = {}, as set", self.n, self.m));
+            let m = if self.nkrr { format!(", m = {}", self.m) } else { String::new() };
+            out.push(format!("fits: {} points{m}, as set", self.n));
         }
         out.extend(self.actions.iter().map(|a| format!("will {a}")));
         out
@@ -293,6 +296,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         points,
         n: n as usize,
         m: m as usize,
+        nkrr,
         krr_on_gpu,
         stages,
         binding_limit: b,

@@ -74,14 +74,22 @@ async function openFile(file, source = null) {
     bytes = new Uint8Array(await file.arrayBuffer());
     cloud = nk.parse_cloud(bytes, file.name);
   } catch (e) {
-    $('cloud-info').hidden = true;
+    // An earlier cloud stays loaded (in the view, and for Run): keep its panel.
+    $('cloud-info').hidden = !input;
     show(`Could not read ${file.name}: ${e.message ?? e}`, 'error');
     return;
   }
   const b = cloud.bounds;
   $('file-name').textContent = file.name;
   $('point-count').textContent = fmt.format(cloud.count);
-  $('bounds').textContent = `[${num(b[0])}, ${num(b[1])}, ${num(b[2])}] – [${num(b[3])}, ${num(b[4])}, ${num(b[5])}]`;
+  // Far-off clouds are read relative to an origin (kept as the GLB's root translation): show
+  // the bounds in the file's coordinates.
+  const o = cloud.origin;
+  const far = o.some((v) => v !== 0);
+  const at = far ? (x) => x.toFixed(3) : num;
+  $('bounds').textContent = `[${at(b[0] + o[0])}, ${at(b[1] + o[1])}, ${at(b[2] + o[2])}] – ` +
+    `[${at(b[3] + o[0])}, ${at(b[4] + o[1])}, ${at(b[5] + o[2])}]` +
+    (far ? ` (read relative to [${o.join(', ')}], kept in the GLB as its root translation)` : '');
   $('extent').textContent = `${num(b[3] - b[0])} × ${num(b[4] - b[1])} × ${num(b[5] - b[2])}`;
   $('format').textContent = cloud.format;
   $('layout').textContent = cloud.layout;
@@ -110,9 +118,10 @@ async function openFile(file, source = null) {
   $('show-wire').disabled = true;
   // An even subsample of at most 100k points stays on the page for the live trim.
   const points = cloud.sample_positions(100_000);
-  cloud.free();
-  // The worker reads the file itself for each run; the preflight needs only the counts.
+  // The worker reads the file itself for each run; the preflight needs only the counts (read
+  // before free: the Cloud's getters fail once it is freed).
   input = { name: file.name, file, source, points, count: cloud.count, colours: cloud.has_colors, unitsWarn: g.warn };
+  cloud.free();
   updatePreflight();
   updateShareLink();
   setResult(null);
@@ -244,7 +253,7 @@ let job = null; // { options, started, timer, fraction, stage, abort }
 async function run() {
   if (!input || job) return;
   const options = readOptions();
-  options.name = input.name.replace(/\.ply$/i, '') || 'mesh';
+  options.name = input.name.replace(/\.(ply|las|laz|e57|xyz|xyzrgb|pts|csv|txt|asc)$/i, '') || 'mesh';
   const abort = new AbortController();
   const me = { options, started: performance.now(), fraction: 0, stage: 'setup', timer: setInterval(tick, 100), abort };
   job = me;
