@@ -1,6 +1,7 @@
 // The reconstructed mesh: indexed triangles with vertex normals, lit by a key light that follows
 // the camera (above and to the left of it) plus a dim fill and a little specular. Faces seen
 // from behind are drawn in a darker, warmer tone so a hole or an inside-out patch is visible.
+// Vertex colours (the mesh's COLOR_0, alpha 255) replace the base colour where present.
 // `fs_wire` colours the optional wireframe (the same vertices drawn as a line list).
 
 struct MeshView {
@@ -17,11 +18,13 @@ struct VOut {
     @builtin(position) pos: vec4<f32>,
     @location(0) world: vec3<f32>,
     @location(1) normal: vec3<f32>,
+    @location(2) color: vec4<f32>,
 }
 
 @vertex
-fn vs(@location(0) p: vec3<f32>, @location(1) n: vec3<f32>) -> VOut {
+fn vs(@location(0) p: vec3<f32>, @location(1) n: vec3<f32>, @location(2) c: vec4<f32>) -> VOut {
     var out: VOut;
+    out.color = c;
     out.pos = view.view_proj * vec4<f32>(p, 1.0);
     out.world = p;
     out.normal = n;
@@ -42,7 +45,8 @@ fn fs(in: VOut) -> @location(0) vec4<f32> {
     let fill = 0.5 + 0.5 * n.y;
     let h = normalize(l + v);
     let spec = pow(max(dot(n, h), 0.0), 48.0) * 0.25;
-    let base = select(view.base.rgb, vec3<f32>(0.62, 0.36, 0.30), back);
+    let front = select(view.base.rgb, in.color.rgb, in.color.a > 0.5);
+    let base = select(front, vec3<f32>(0.62, 0.36, 0.30), back);
     let c = base * (0.18 + 0.72 * key + 0.15 * fill) + vec3<f32>(spec);
     return vec4<f32>(c, 1.0);
 }

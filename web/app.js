@@ -307,7 +307,7 @@ function onDone(r) {
   const name = job.options.name;
   let notShown = null;
   try {
-    viewer.set_mesh(r.positions, r.normals, r.indices);
+    viewer.set_mesh(r.positions, r.normals, r.indices, r.colors?.length ? r.colors : undefined);
   } catch (e) {
     notShown = e.message ?? String(e);
   }
@@ -369,7 +369,7 @@ function applyTrim(initial = false) {
   $('r-watertight').className = closed ? 'yes' : 'no';
   if (initial && f === 0) return; // onDone has just shown the whole mesh
   try {
-    viewer.set_mesh(m.positions, m.normals, result.indices);
+    viewer.set_mesh(m.positions, m.normals, result.indices, m.colors?.length ? m.colors : undefined);
   } catch (e) {
     show(e.message ?? String(e), 'error');
   }

@@ -74,6 +74,8 @@ impl Orbit {
 struct MeshDraw {
     positions: wgpu::Buffer,
     normals: wgpu::Buffer,
+    /// RGBA8 per vertex; alpha 0 (a mesh without colours) means the viewer's base colour.
+    colors: wgpu::Buffer,
     indices: wgpu::Buffer,
     index_count: u32,
     /// Each undirected edge once, as a line list, for the wireframe.
@@ -308,8 +310,14 @@ impl Viewer {
     /// three vertex indices per triangle (counter-clockwise seen from outside). Replaces an
     /// earlier mesh; the camera stays where it is unless nothing was shown before. Fails on
     /// inconsistent lengths or an index out of range.
-    pub fn set_mesh(&mut self, positions: &[f32], normals: &[f32], indices: &[u32]) -> Result<(), JsError> {
+    /// `colors` (optional): RGBA8 per vertex, the mesh's COLOR_0; without them the mesh is
+    /// drawn in the viewer's base colour.
+    pub fn set_mesh(&mut self, positions: &[f32], normals: &[f32], indices: &[u32], colors: Option<Vec<u8>>) -> Result<(), JsError> {
         let n = positions.len() / 3;
+        let colors = colors.filter(|c| !c.is_empty()).unwrap_or_else(|| vec![0; 4 * n]);
+        if colors.len() != 4 * n {
+            return Err(JsError::new(&format!("set_mesh: {} colour bytes for {n} vertices (4 per vertex)", colors.len())));
+        }
         if positions.len() % 3 != 0 || normals.len() != positions.len() {
             return Err(JsError::new(&format!(
                 "set_mesh: {} position and {} normal floats (both must be 3 per vertex)",
@@ -356,6 +364,7 @@ impl Viewer {
         self.mesh = Some(MeshDraw {
             positions: buffer("mesh positions", bytemuck::cast_slice(positions), wgpu::BufferUsages::VERTEX),
             normals: buffer("mesh normals", bytemuck::cast_slice(normals), wgpu::BufferUsages::VERTEX),
+            colors: buffer("mesh colours", &colors, wgpu::BufferUsages::VERTEX),
             indices: buffer("mesh indices", bytemuck::cast_slice(indices), wgpu::BufferUsages::INDEX),
             index_count: indices.len() as u32,
             edges: buffer("mesh edges", bytemuck::cast_slice(&edges), wgpu::BufferUsages::INDEX),
@@ -461,6 +470,20 @@ impl Viewer {
     /// background, so a browser test can tell a drawn cloud from an empty view. The borrow of
     /// the viewer ends before the promise's readback, so renders may interleave with it.
     pub fn coverage(&mut self) -> js_sys::Promise {
+        self.offscreen_stats(|covered, _, total| covered as f64 / total as f64)
+    }
+
+    /// Test hook: like [`Viewer::coverage`], the fraction of the covered pixels that are
+    /// saturated (channels differing by 48 or more), so a test can tell a mesh drawn in its
+    /// vertex colours from the grey one.
+    pub fn saturation(&mut self) -> js_sys::Promise {
+        self.offscreen_stats(|covered, saturated, _| saturated as f64 / covered.max(1) as f64)
+    }
+}
+
+impl Viewer {
+    /// Renders offscreen and resolves to `stat(covered, saturated, total)` over the pixels.
+    fn offscreen_stats(&mut self, stat: fn(usize, usize, usize) -> f64) -> js_sys::Promise {
         let (w, h) = (self.config.width, self.config.height);
         let scope = self.gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
@@ -501,17 +524,20 @@ impl Viewer {
             drop(texture);
             let bg = [BACKGROUND.r, BACKGROUND.g, BACKGROUND.b].map(|c| (c * 255.0).round() as i32);
             let near = |a: i32, b: i32| (a - b).abs() <= 3;
-            let mut hit = 0usize;
+            let (mut covered, mut saturated) = (0usize, 0usize);
             for y in 0..h as usize {
                 for p in bytes[y * row as usize..][..w as usize * 4].chunks_exact(4) {
                     // BGRA or RGBA: compare both channel orders against the background.
                     let (r, g, b) = (p[0] as i32, p[1] as i32, p[2] as i32);
                     let is_bg = (near(r, bg[0]) && near(g, bg[1]) && near(b, bg[2]))
                         || (near(b, bg[0]) && near(g, bg[1]) && near(r, bg[2]));
-                    hit += !is_bg as usize;
+                    if !is_bg {
+                        covered += 1;
+                        saturated += (r.max(g).max(b) - r.min(g).min(b) >= 48) as usize;
+                    }
                 }
             }
-            Ok(JsValue::from_f64(hit as f64 / (w * h) as f64))
+            Ok(JsValue::from_f64(stat(covered, saturated, (w * h) as usize)))
         })
     }
 }
@@ -569,6 +595,7 @@ impl Viewer {
                 pass.set_bind_group(0, &self.mesh_bind_group, &[]);
                 pass.set_vertex_buffer(0, m.positions.slice(..));
                 pass.set_vertex_buffer(1, m.normals.slice(..));
+                pass.set_vertex_buffer(2, m.colors.slice(..));
                 pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..m.index_count, 0, 0..1);
             }
@@ -577,6 +604,7 @@ impl Viewer {
                 pass.set_bind_group(0, &self.wire_bind_group, &[]);
                 pass.set_vertex_buffer(0, m.positions.slice(..));
                 pass.set_vertex_buffer(1, m.normals.slice(..));
+                pass.set_vertex_buffer(2, m.colors.slice(..));
                 pass.set_index_buffer(m.edges.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..m.edge_index_count, 0, 0..1);
             }
@@ -647,7 +675,7 @@ fn wire_pipeline(
     mesh_vertex_pipeline(device, format, uniform, "mesh wireframe", "fs_wire", wgpu::PrimitiveTopology::LineList, depth)
 }
 
-/// A pipeline over the mesh's vertex buffers (positions, normals) and its view uniform, with
+/// A pipeline over the mesh's vertex buffers (positions, normals, colours) and its view uniform, with
 /// `shaders/mesh.wgsl`'s vertex stage and the given fragment entry, topology and depth state.
 fn mesh_vertex_pipeline(
     device: &wgpu::Device,
@@ -679,6 +707,11 @@ fn mesh_vertex_pipeline(
                     array_stride: 12,
                     step_mode: wgpu::VertexStepMode::Vertex,
                     attributes: &wgpu::vertex_attr_array![1 => Float32x3],
+                }),
+                Some(wgpu::VertexBufferLayout {
+                    array_stride: 4,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![2 => Unorm8x4],
                 }),
             ],
         },

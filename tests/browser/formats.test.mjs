@@ -223,8 +223,14 @@ test('LAZ (LAS 1.4, point format 7, far-off coordinates, colours): panel, prefli
     assert.ok(meanErr < 20, `COLOR_0 is ${meanErr.toFixed(1)} (of 255) from the colour ramp on average`);
     console.log(`LAZ: ${seconds.toFixed(1)} s; ${nv} vertices; translation ${t.join(', ')}; COLOR_0 mean error ${meanErr.toFixed(2)}/255`);
 
+    // The viewer draws the mesh in those colours: most of its pixels are saturated (the grey
+    // mesh of an uncoloured cloud has almost none: the spot-3k test checks that).
+    await page.uncheck('#show-cloud');
+    const saturation = await page.evaluate(() => window.nkrrViewer.saturation());
+    assert.ok(saturation > 0.3, `only ${(100 * saturation).toFixed(1)}% of the mesh's pixels are coloured`);
     await page.waitForTimeout(300);
     await page.screenshot({ path: path.join(ARTIFACTS, 'reconstruct-laz-colours.png') });
+    await page.check('#show-cloud');
     assert.deepEqual(errors, []);
   } finally {
     await b.close();

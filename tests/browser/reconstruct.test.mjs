@@ -164,6 +164,9 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     await page.uncheck('#show-cloud');
     const meshCoverage = await page.evaluate(() => window.nkrrViewer.coverage());
     assert.ok(meshCoverage > 0.02 && meshCoverage < 0.95, `mesh coverage ${meshCoverage}`);
+    // No colours in the cloud: the mesh is drawn grey (front faces), hardly a saturated pixel.
+    const saturation = await page.evaluate(() => window.nkrrViewer.saturation());
+    assert.ok(saturation < 0.1, `${(100 * saturation).toFixed(1)}% of the grey mesh's pixels are saturated`);
     // The wireframe alone (mesh hidden) draws the edges; nothing at all is drawn without it.
     await page.uncheck('#show-mesh');
     assert.equal(await page.evaluate(() => window.nkrrViewer.coverage()), 0);
