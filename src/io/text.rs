@@ -374,9 +374,12 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     if !ignored.is_empty() {
         notes.push(format!("ignored columns: {}", ignored.join(", ")));
     }
-    let sep = if text[..text.len().min(4096)].contains(',') {
+    // Bytes, not a str slice: 4096 may fall inside a multi-byte character (the libFuzzer
+    // target found that).
+    let head = &text.as_bytes()[..text.len().min(4096)];
+    let sep = if head.contains(&b',') {
         "comma-separated"
-    } else if text[..text.len().min(4096)].contains(';') {
+    } else if head.contains(&b';') {
         "semicolon-separated"
     } else {
         "whitespace-separated"
@@ -482,6 +485,14 @@ mod tests {
         let f = read("# scanner export\r\n\r\n//X,Y,Z\r\n1,2,3\r\n4,5,6\r\n");
         assert_eq!(f.cloud.len(), 2);
         assert_eq!(f.comments, vec!["scanner export".to_string()]);
+    }
+
+    #[test]
+    fn a_multibyte_character_across_the_4_kb_head_is_fine() {
+        let mut s = "# ".to_string() + &"x".repeat(4093) + "\u{61ca}\n";
+        s.push_str("0 0 0\n1 0 0\n0 1 0\n");
+        assert_eq!(s.char_indices().find(|(_, c)| *c == '\u{61ca}').map(|(i, _)| i), Some(4095));
+        assert_eq!(read(&s).cloud.len(), 3);
     }
 
     #[test]

@@ -1,0 +1,8 @@
+//! libFuzzer target: the e57 reader (through the content detection of `read_cloud`) must return,
+//! never panic, on any bytes.
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    let _ = nkrr::io::e57::read_e57(data);
+    let _ = nkrr::io::read_cloud(data, None);
+});
