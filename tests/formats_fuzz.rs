@@ -11,52 +11,16 @@
 //! `NKRR_FUZZ_CASES` sets the number of inputs per seed (default 3000), `NKRR_FUZZ_SEED` the
 //! PRNG seed. A failure names the seed, the case and the mutation.
 
-mod common;
-
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-struct Watch;
+#[path = "common/fuzz.rs"]
+mod fuzz;
 
-static LARGEST: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Watch {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        LARGEST.fetch_max(l.size(), Ordering::Relaxed);
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-        LARGEST.fetch_max(l.size(), Ordering::Relaxed);
-        unsafe { System.alloc_zeroed(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
-        LARGEST.fetch_max(new, Ordering::Relaxed);
-        unsafe { System.realloc(p, l, new) }
-    }
-}
+use fuzz::{Rng, Watch, LARGEST};
 
 #[global_allocator]
 static GLOBAL: Watch = Watch;
-
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        // SplitMix64.
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-}
 
 const EXTREMES: [&[u8]; 7] = [
     &[0; 8],
@@ -121,7 +85,7 @@ fn mutate(seed: &[u8], rng: &mut Rng) -> (Vec<u8>, String) {
 }
 
 fn seeds() -> Vec<(String, Vec<u8>)> {
-    let dir = common::repo_root().join("tests/fixtures/formats");
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/formats");
     let mut out: Vec<(String, Vec<u8>)> = [
         "spot-las12-pf3.las",
         "spot-las14-pf10.las",
