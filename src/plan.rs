@@ -270,7 +270,12 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         name: "meshing",
         gpu_bytes: planes + ((20 + 8 * net.c) * cd + predict).max(16_384 + 52 * n_b + 96 * n_b),
         largest_binding: (4 * net.c * cd).max(4 * m * d * u64::from(nkrr)).max(240 * n_b),
-        host_bytes: attrs + batch * (40 + 4 * net.c) + 32 * evaluated + 92 * active + 108 * triangles,
+        // The CPU predictor (nkrr with the f64 objective) widens each batch's features to f64.
+        host_bytes: attrs
+            + batch * (40 + 4 * net.c + if nkrr && !krr_on_gpu { 8 * d + 8 } else { 0 })
+            + 32 * evaluated
+            + 92 * active
+            + 108 * triangles,
     });
     if settings.trim.is_some() || (colours && settings.colors) {
         let mut host = attrs + 12 * triangles + 12 * active;
