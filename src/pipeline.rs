@@ -91,6 +91,18 @@ pub enum KrrBackend {
     Cpu,
 }
 
+impl KrrBackend {
+    /// Whether the objective runs on the GPU, on an adapter that is (`software`) or is not a
+    /// software one.
+    pub fn on_gpu(self, software: bool) -> bool {
+        match self {
+            KrrBackend::Gpu => true,
+            KrrBackend::Cpu => false,
+            KrrBackend::Auto => !software,
+        }
+    }
+}
+
 impl std::str::FromStr for KrrBackend {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
@@ -468,11 +480,7 @@ async fn fit_krr(
         tune_z: settings.tune_z,
         ..Default::default()
     };
-    let on_gpu = match settings.krr_backend {
-        KrrBackend::Gpu => true,
-        KrrBackend::Cpu => false,
-        KrrBackend::Auto => gpu.info.device_type != wgpu::DeviceType::Cpu,
-    };
+    let on_gpu = settings.krr_backend.on_gpu(gpu.is_software());
     let of = settings.steps;
     let report = |step: usize, eval: &krr::Eval| progress(&Stage::Tuning { step, of, loss: eval.loss });
     let (initial, result, predictor, (evaluations, phases)) = if on_gpu {

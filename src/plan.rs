@@ -11,7 +11,7 @@
 //! memory, so only the per-buffer limits are checked on the GPU; the totals are reported.
 
 use crate::net::NetConfig;
-use crate::pipeline::{KrrBackend, Method, Settings};
+use crate::pipeline::{Method, Settings};
 
 /// What the plan needs to know about the adapter.
 #[derive(Clone, Debug, PartialEq)]
@@ -32,14 +32,14 @@ pub const WASM_HOST_BUDGET: u64 = 2_500_000_000;
 impl DeviceFacts {
     pub fn from_limits(limits: &wgpu::Limits, software: bool) -> DeviceFacts {
         DeviceFacts {
-            binding: limits.max_storage_buffer_binding_size.min(limits.max_buffer_size),
+            binding: crate::gpu::binding_limit(limits),
             software,
             host_budget: cfg!(target_arch = "wasm32").then_some(WASM_HOST_BUDGET),
         }
     }
 
     pub fn of(gpu: &crate::gpu::Gpu) -> DeviceFacts {
-        Self::from_limits(&gpu.limits, gpu.info.device_type == wgpu::DeviceType::Cpu)
+        Self::from_limits(&gpu.limits, gpu.is_software())
     }
 
     /// WebGPU's default limits (128 MiB bindings), for a machine without an adapter.
@@ -160,9 +160,10 @@ impl Net {
     }
 }
 
-/// Rows per K~ block and the decode chunk, as the GPU code picks them.
+/// Queries per decode submission, as [`crate::net::GpuNet`] picks them, for `queries` queries.
 fn decode_chunk(binding: u64, c: u64, queries: u64) -> u64 {
-    (crate::net::gpu::MAX_DECODE_CHUNK as u64).min(binding / (4 * c.max(3))).min(queries).max(1)
+    let max = crate::net::gpu::max_decode_queries(binding, c as usize).min(crate::net::gpu::MAX_DECODE_CHUNK);
+    (max as u64).min(queries).max(1)
 }
 
 /// The plan for a cloud of `points` points (`colours`: whether it has colours) reconstructed
@@ -171,11 +172,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     let net = Net::of(cfg);
     let b = device.binding.max(1);
     let nkrr = settings.method == Method::Nkrr;
-    let krr_on_gpu = match settings.krr_backend {
-        KrrBackend::Gpu => true,
-        KrrBackend::Cpu => false,
-        KrrBackend::Auto => !device.software,
-    };
+    let krr_on_gpu = settings.krr_backend.on_gpu(device.software);
     let d: u64 = if settings.euclidean { 3 + 6 * crate::pipeline::FOURIER_OCTAVES as u64 } else { net.c };
     let mut actions = Vec::new();
 
@@ -189,10 +186,12 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     // m: the GPU objective's m×m accumulator (12 bytes an entry) is one buffer.
     let m_fit = ((b / 12) as f64).sqrt() as u64;
     let mut m = (settings.m as u64).clamp(1, 2 * n);
-    let cpu_krr_host = |n: u64, m: u64| {
-        let np = 2 * n;
-        8 * np * (m + 2 * d + 3) + 8 * np * (d + 1) + 96 * m * m
-    };
+    // The CPU objective's host memory: per point (two pairs), the f64 K_nm row, X twice and
+    // the targets; plus the m×m f64 matrices.
+    let cpu_krr_per_point = |m: u64| 16 * (m + 2 * d + 3) + 16 * (d + 1);
+    let cpu_krr_host = |n: u64, m: u64| n * cpu_krr_per_point(m) + 96 * m * m;
+    let nn = points as u64;
+    let attrs = 12 * nn + if colours { 4 * nn } else { 0 };
     if n > n_fit {
         actions.push(format!(
             "subsample to {n_fit} points (from {n}): the largest buffer would exceed the adapter's {}",
@@ -207,9 +206,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     if let (true, false, Some(budget)) = (nkrr, krr_on_gpu, device.host_budget) {
         if cpu_krr_host(n, m) > budget {
             // The f64 kernel matrix grows with n: find the largest n that fits.
-            let per_point = 16 * (m + 2 * d + 3) + 16 * (d + 1);
-            let attrs = (12 + 4 * u64::from(colours)) * points as u64;
-            let fit = budget.saturating_sub(96 * m * m + attrs) / per_point.max(1);
+            let fit = budget.saturating_sub(96 * m * m + attrs) / cpu_krr_per_point(m).max(1);
             actions.push(format!(
                 "subsample the regression to {fit} points (from {n}): its f64 kernel matrix would exceed the {} host budget",
                 mib(budget)
@@ -218,10 +215,8 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         }
     }
     let np = 2 * n;
-    let nn = points as u64;
 
     let mut stages = Vec::new();
-    let attrs = 12 * nn + if colours { 4 * nn } else { 0 };
     stages.push(StagePlan { name: "load", gpu_bytes: 0, largest_binding: 0, host_bytes: attrs + 12 * nn + 12 * n });
 
     let k = (3 * n).min(3 * net.reso * net.reso);
@@ -242,7 +237,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
             largest_binding: 4 * net.c * cd,
             host_bytes: attrs + np * (4 * net.c + 8 * d + 20) + 40 * n,
         });
-        let rows = (b / (4 * m)).min(65_535).min(np).max(1);
+        let rows = (b / (4 * m)).min(crate::krr::gpu::MAX_BLOCK_ROWS as u64).min(np).max(1);
         let (gpu, binding, host) = if krr_on_gpu {
             (
                 planes + 4 * np * (m + d + 4) + 4 * rows * m + 16 * m * m + 48 * m * d,
@@ -315,7 +310,7 @@ mod tests {
     use super::*;
 
     fn cfg() -> NetConfig {
-        crate::net::Weights::prior().unwrap().config().clone()
+        NetConfig::prior().unwrap()
     }
 
     fn device(binding: u64) -> DeviceFacts {

@@ -117,7 +117,7 @@ fn info(args: &[String]) -> Result<(), Failure> {
     let (bytes, scan) = read_scan(&path)?;
     let cloud = &scan.cloud;
     println!("file:       {path} ({} bytes)", bytes.len());
-    println!("format:     {}", scan.describe_layout());
+    println!("format:     {}", scan.layout);
     println!("points:     {} (in the file: {})", cloud.len(), scan.declared);
     if let Some(b) = cloud.bounds() {
         let e = b.extent();
@@ -131,7 +131,7 @@ fn info(args: &[String]) -> Result<(), Failure> {
             println!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]);
         }
         println!("extent:     {} x {} x {}", e[0], e[1], e[2]);
-        let g = nkrr::units::guess(b.longest_side() as f64, scan.stated_units);
+        let g = scan.units_guess();
         let given = settings.units.map(|u| format!("{u} (given)"));
         println!(
             "units:      {}: {}",
@@ -174,8 +174,12 @@ fn preflight(cloud: &nkrr::cloud::PointCloud, settings: &nkrr::pipeline::Setting
         Ok(gpu) => (nkrr::plan::DeviceFacts::of(&gpu), gpu.info.name.clone()),
         Err(e) => (nkrr::plan::DeviceFacts::webgpu_default(), format!("none ({e}); WebGPU's default limits assumed")),
     };
-    let plan = nkrr::plan::memory_plan(cloud.len(), cloud.colors.is_some(), settings, &nkrr::net::Weights::prior().expect("the built-in prior loads").config().clone(), &limits);
     println!("adapter:    {adapter}");
+    let config = match nkrr::net::NetConfig::prior() {
+        Ok(c) => c,
+        Err(e) => return println!("memory:     no estimate: the built-in prior does not load ({e})"),
+    };
+    let plan = nkrr::plan::memory_plan(cloud.len(), cloud.colors.is_some(), settings, &config, &limits);
     for line in plan.lines() {
         println!("memory:     {line}");
     }
@@ -203,7 +207,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             s => return Err(usage(&format!("unexpected argument '{s}'"))),
         }
     }
-    let input = input.ok_or_else(|| usage("reconstruct needs an input PLY"))?;
+    let input = input.ok_or_else(|| usage("reconstruct needs an input cloud"))?;
     let output = output.ok_or_else(|| usage("reconstruct needs -o OUT.glb"))?;
     use nkrr::io::mesh_out::{self, MeshFormat};
     let format = MeshFormat::from_path(&output)
@@ -215,9 +219,9 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     for w in parsed.warnings() {
         eprintln!("warning: {w}");
     }
-    eprintln!("read {} points from {input} ({})", parsed.cloud.len(), parsed.describe_layout());
-    if let (None, Some(b)) = (settings.units, parsed.cloud.bounds()) {
-        let g = nkrr::units::guess(b.longest_side() as f64, parsed.stated_units);
+    eprintln!("read {} points from {input} ({})", parsed.cloud.len(), parsed.layout);
+    if settings.units.is_none() {
+        let g = parsed.units_guess();
         if g.warn {
             eprintln!("warning: no --units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): pass --units mm if they are millimetres", g.reason);
         }

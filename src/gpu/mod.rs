@@ -59,6 +59,12 @@ pub struct Gpu {
     pub limits: wgpu::Limits,
 }
 
+/// The largest buffer a shader may bind under `limits`: both the storage-binding and the
+/// buffer-size limit apply.
+pub fn binding_limit(limits: &wgpu::Limits) -> u64 {
+    limits.max_storage_buffer_binding_size.min(limits.max_buffer_size)
+}
+
 impl Gpu {
     /// An instance configured from the environment (`WGPU_BACKEND` etc.), no display needed.
     pub fn instance() -> wgpu::Instance {
@@ -178,7 +184,7 @@ impl Gpu {
             .checked_mul(std::mem::size_of::<T>() as u64)
             .ok_or_else(|| GpuError::TooLarge(format!("{label}: {len} elements overflow")))?
             .max(4);
-        let max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
+        let max = binding_limit(&self.limits);
         if size > max {
             return Err(GpuError::TooLarge(format!(
                 "{label} needs {size} bytes; this device binds at most {max}"
@@ -187,11 +193,15 @@ impl Gpu {
         Ok(size)
     }
 
+    /// Whether the adapter is a software one (lavapipe, SwiftShader: wgpu reports a CPU device).
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
     /// How many rows of `row_bytes` fit one storage binding on this device (at least 1).
     /// Stages split their work into blocks of this many rows.
     pub fn rows_per_binding(&self, row_bytes: u64) -> usize {
-        let max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
-        (max / row_bytes.max(1)).max(1) as usize
+        (binding_limit(&self.limits) / row_bytes.max(1)).max(1) as usize
     }
 
     /// A compute pipeline from WGSL source, with its bind group layout inferred.

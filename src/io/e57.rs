@@ -9,7 +9,7 @@
 
 use std::io::Cursor;
 
-use super::scan::{CloudBuilder, ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
+use super::scan::{u64_at, CloudBuilder, ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
 
 /// Points an E57 file may declare per byte of file (as for LAZ: two orders of magnitude above
@@ -20,8 +20,7 @@ fn check_header(b: &[u8]) -> Result<(), String> {
     if b.len() < 48 {
         return Err(format!("the file is {} bytes, shorter than an E57 header (48 bytes)", b.len()));
     }
-    let u64_at = |at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap_or([0; 8]));
-    let (xml_offset, xml_length, page) = (u64_at(24), u64_at(32), u64_at(40));
+    let (xml_offset, xml_length, page) = (u64_at(b, 24), u64_at(b, 32), u64_at(b, 40));
     let len = b.len() as u64;
     if page != 1024 {
         return Err(format!("the header declares a page size of {page} bytes (E57 uses 1024)"));
@@ -51,7 +50,7 @@ pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
         ));
     }
     let colours = scans.iter().any(|s| s.has_color());
-    let mut out = CloudBuilder::new(false, colours);
+    let mut out = CloudBuilder::new(false, colours, true);
     out.reserve(declared.min(1 << 22) as usize);
     let mut invalid = 0u64;
     let mut comments = Vec::new();

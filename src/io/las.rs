@@ -12,7 +12,7 @@
 
 use std::io::{Cursor, Seek, SeekFrom};
 
-use super::scan::{CloudBuilder, ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
+use super::scan::{u16_at, u32_at, u64_at, CloudBuilder, ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
 
 /// Points decoded at a time: bounds the record buffer whatever the file declares.
@@ -20,16 +20,6 @@ const BATCH: usize = 1 << 16;
 /// Points a compressed file may declare per byte of compressed data. Real LAZ files spend
 /// 1–10 bytes a point; this leaves two orders of magnitude for very regular data.
 const LAZ_POINTS_PER_BYTE: u64 = 64;
-
-fn u16_at(b: &[u8], at: usize) -> u64 {
-    u16::from_le_bytes([b[at], b[at + 1]]) as u64
-}
-fn u32_at(b: &[u8], at: usize) -> u64 {
-    u32::from_le_bytes(b[at..at + 4].try_into().unwrap_or([0; 4])) as u64
-}
-fn u64_at(b: &[u8], at: usize) -> u64 {
-    u64::from_le_bytes(b[at..at + 8].try_into().unwrap_or([0; 8]))
-}
 
 /// The public header's fields that bound allocations, checked against the file.
 struct Layout {
@@ -239,7 +229,7 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
     }
     cur.seek(SeekFrom::Start(layout.offset_to_points)).map_err(|e| e.to_string())?;
 
-    let mut out = CloudBuilder::new(false, format.has_color);
+    let mut out = CloudBuilder::new(false, format.has_color, true);
     out.reserve(usize::try_from(count).unwrap_or(usize::MAX).min(BATCH * 16));
     let mut rgb16: Vec<[u16; 3]> = Vec::new();
     let mut done = 0u64;

@@ -34,6 +34,7 @@
 //! it must not reach the reconstruction either. If every vertex is dropped the cloud is useless
 //! and that is an error ([`PlyError::AllNonFinite`]).
 
+use super::scan::CloudBuilder;
 use crate::cloud::PointCloud;
 use std::fmt;
 
@@ -1100,55 +1101,19 @@ fn color_u8(v: f64, t: ScalarType) -> u8 {
     v.round().clamp(0.0, 255.0) as u8
 }
 
-/// The cloud being built; vertices with a non-finite position are counted, not stored.
-struct Out {
-    positions: Vec<[f32; 3]>,
-    normals: Vec<[f32; 3]>,
-    colors: Vec<[u8; 4]>,
-    dropped: usize,
-    /// Subtracted from every position (see `cloud::origin_for`); decided at the first finite
-    /// vertex, and only when a coordinate's type holds more than an `f32` can (`wide`).
-    origin: Option<[f64; 3]>,
-    wide: bool,
-}
-
-impl Out {
-    #[inline(always)]
-    fn push(&mut self, v: &[f64; NSLOTS], p: &VertexPlan) {
-        let o = match self.origin {
-            Some(o) => o,
-            None if self.wide && v[X..X + 3].iter().all(|c| c.is_finite()) => {
-                let o = crate::cloud::origin_for([v[X], v[X + 1], v[X + 2]]);
-                self.origin = Some(o);
-                o
-            }
-            None => [0.0; 3],
-        };
-        let pos = [(v[X] - o[0]) as f32, (v[X + 1] - o[1]) as f32, (v[X + 2] - o[2]) as f32];
-        if !pos.iter().all(|c| c.is_finite()) {
-            self.dropped += 1;
-            return;
-        }
-        self.positions.push(pos);
-        if p.has_normals {
-            self.normals
-                .push([v[NX] as f32, v[NX + 1] as f32, v[NX + 2] as f32]);
-        }
-        if p.has_colors {
-            let t = &p.types;
-            let a = if p.has_alpha {
-                color_u8(v[A], t[A])
-            } else {
-                255
-            };
-            self.colors.push([
-                color_u8(v[R], t[R]),
-                color_u8(v[R + 1], t[R + 1]),
-                color_u8(v[R + 2], t[R + 2]),
-                a,
-            ]);
-        }
-    }
+/// Decodes one vertex's used values into the shared [`CloudBuilder`] (which recentres far-off
+/// clouds and counts vertices with a non-finite position instead of storing them).
+#[inline(always)]
+fn push_vertex(out: &mut CloudBuilder, v: &[f64; NSLOTS], p: &VertexPlan) {
+    let normal = if p.has_normals { [v[NX] as f32, v[NX + 1] as f32, v[NX + 2] as f32] } else { [0.0; 3] };
+    let colour = if p.has_colors {
+        let t = &p.types;
+        let a = if p.has_alpha { color_u8(v[A], t[A]) } else { 255 };
+        [color_u8(v[R], t[R]), color_u8(v[R + 1], t[R + 1]), color_u8(v[R + 2], t[R + 2]), a]
+    } else {
+        [0; 4]
+    };
+    out.push([v[X], v[X + 1], v[X + 2]], normal, colour);
 }
 
 fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, usize), PlyError> {
@@ -1156,23 +1121,11 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
     // check_capacity has bounded e.count by the body length (at least 3 bytes or tokens per
     // vertex), so this reservation is justified by the input and fits in usize.
     let cap = usize::try_from(e.count).unwrap_or(0);
-    let mut out = Out {
-        positions: Vec::with_capacity(cap),
-        normals: if p.has_normals {
-            Vec::with_capacity(cap)
-        } else {
-            Vec::new()
-        },
-        colors: if p.has_colors {
-            Vec::with_capacity(cap)
-        } else {
-            Vec::new()
-        },
-        dropped: 0,
-        origin: None,
-        // Types whose values an f32 may not hold exactly; `float` coordinates are read as-is.
-        wide: p.types[X..X + 3].iter().any(|t| matches!(t, ScalarType::F64 | ScalarType::I32 | ScalarType::U32)),
-    };
+    // Only types whose values an f32 may not hold exactly are recentred; `float` coordinates are
+    // read as-is.
+    let wide = p.types[X..X + 3].iter().any(|t| matches!(t, ScalarType::F64 | ScalarType::I32 | ScalarType::U32));
+    let mut out = CloudBuilder::new(p.has_normals, p.has_colors, wide);
+    out.reserve(cap);
     let mut v = [0f64; NSLOTS];
     let fixed = fixed_size(e).filter(|&size| size > 0);
     if let Some(range) = fixed.and_then(|size| src.fixed_block(e.count, size)) {
@@ -1193,7 +1146,7 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
             for &(off, t, s) in &used {
                 v[s] = S::decode(&rec[off..], t);
             }
-            out.push(&v, &p);
+            push_vertex(&mut out, &v, &p);
         }
     } else {
         for index in 0..e.count {
@@ -1207,17 +1160,12 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
                 };
                 r.map_err(|f| located_src(f, e, index, pi, src))?;
             }
-            out.push(&v, &p);
+            push_vertex(&mut out, &v, &p);
         }
     }
-    if out.positions.is_empty() {
+    if out.len() == 0 {
         return Err(PlyError::AllNonFinite { count: e.count });
     }
-    let cloud = PointCloud {
-        positions: out.positions,
-        normals: p.has_normals.then_some(out.normals),
-        colors: p.has_colors.then_some(out.colors),
-        origin: out.origin.unwrap_or([0.0; 3]),
-    };
-    Ok((cloud, out.dropped))
+    let dropped = out.dropped as usize;
+    Ok((out.finish(), dropped))
 }

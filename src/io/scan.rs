@@ -70,7 +70,8 @@ pub struct ScanFile {
     /// minus `dropped_non_finite` (and, for E57, minus points marked invalid).
     pub declared: u64,
     pub dropped_non_finite: u64,
-    /// Format, coordinate encoding, and attributes, in one line (see [`ScanFile::describe_layout`]).
+    /// Format, coordinate encoding, and attributes, in one line: "LAS 1.4, point format 7
+    /// (LAZ-compressed); scale 0.001 0.001 0.001, offset …; colours (16-bit)".
     pub layout: String,
     /// Comments and metadata worth showing (PLY comments, LAS system/software, E57 scan names).
     pub comments: Vec<String>,
@@ -181,9 +182,24 @@ fn from_ply(parsed: ply::PlyCloud) -> ScanFile {
     }
 }
 
-/// Builds a cloud from `f64` points, as every non-PLY reader does: the origin is chosen at the
-/// first finite point (see [`crate::cloud::origin_for`]), points with a non-finite coordinate
-/// are counted and dropped, and attributes stay aligned with the kept points.
+/// Little-endian integers at byte `at` of a binary header (the caller has checked the length),
+/// widened to u64.
+pub(crate) fn u16_at(b: &[u8], at: usize) -> u64 {
+    u16::from_le_bytes([b[at], b[at + 1]]) as u64
+}
+pub(crate) fn u32_at(b: &[u8], at: usize) -> u64 {
+    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]) as u64
+}
+pub(crate) fn u64_at(b: &[u8], at: usize) -> u64 {
+    let mut v = [0; 8];
+    v.copy_from_slice(&b[at..at + 8]);
+    u64::from_le_bytes(v)
+}
+
+/// Builds a cloud from `f64` points, as every reader does: the origin is chosen at the first
+/// finite point (see [`crate::cloud::origin_for`]) unless recentring is off, points with a
+/// non-finite coordinate are counted and dropped, and attributes stay aligned with the kept
+/// points.
 pub(crate) struct CloudBuilder {
     positions: Vec<[f32; 3]>,
     normals: Option<Vec<[f32; 3]>>,
@@ -193,12 +209,14 @@ pub(crate) struct CloudBuilder {
 }
 
 impl CloudBuilder {
-    pub fn new(normals: bool, colors: bool) -> Self {
+    /// `recentre`: choose an origin for far-off points (off for coordinates an `f32` already
+    /// holds exactly, such as PLY `float`s).
+    pub fn new(normals: bool, colors: bool, recentre: bool) -> Self {
         CloudBuilder {
             positions: Vec::new(),
             normals: normals.then(Vec::new),
             colors: colors.then(Vec::new),
-            origin: None,
+            origin: (!recentre).then_some([0.0; 3]),
             dropped: 0,
         }
     }
@@ -249,21 +267,18 @@ impl CloudBuilder {
     }
 }
 
-/// Normals that are all (or mostly) zero carry no information: say so.
-fn zero_normals(cloud: &PointCloud) -> usize {
-    cloud.normals.as_ref().map_or(0, |n| n.iter().filter(|v| v.iter().all(|c| *c == 0.0)).count())
-}
-
 impl ScanFile {
-    /// The points with an all-zero normal (zero when the cloud has no normals).
+    /// The points with an all-zero normal (zero when the cloud has no normals): such normals
+    /// carry no information.
     pub fn zero_normals(&self) -> usize {
-        zero_normals(&self.cloud)
+        let normals = self.cloud.normals.as_deref().unwrap_or_default();
+        normals.iter().filter(|v| v.iter().all(|c| *c == 0.0)).count()
     }
 
-    /// "LAS 1.4, point format 7 (compressed); scale 0.001; colours" — format, coordinate
-    /// encoding and which optional attributes are present.
-    pub fn describe_layout(&self) -> &str {
-        &self.layout
+    /// What the cloud's size, or the file's own statement, suggests about its units.
+    pub fn units_guess(&self) -> crate::units::UnitsGuess {
+        let longest = self.cloud.bounds().map_or(0.0, |b| b.longest_side() as f64);
+        crate::units::guess(longest, self.stated_units)
     }
 
     /// Things the user should know before reconstructing, one sentence each.

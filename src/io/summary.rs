@@ -37,20 +37,6 @@ impl PlyCloud {
         parts.join("; ")
     }
 
-    /// Things the user should know before reconstructing, one sentence each.
-    pub fn warnings(&self) -> Vec<String> {
-        let mut w = Vec::new();
-        if self.info.dropped_non_finite > 0 {
-            w.push(format!(
-                "{} of {} points had NaN or infinite coordinates and were dropped",
-                self.info.dropped_non_finite, self.info.vertex_count
-            ));
-        }
-        w.extend(cloud_warnings(&self.cloud));
-        w.extend(self.format_notes());
-        w
-    }
-
     /// What the file holds that the pipeline does not use.
     pub fn format_notes(&self) -> Vec<String> {
         let mut w = Vec::new();

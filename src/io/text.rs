@@ -264,10 +264,6 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
                 let line = line.trim().trim_start_matches("//");
                 header = Some(tokens(line).map(str::to_string).collect());
             }
-            Line::Words => {
-                let shown: String = line.trim().chars().take(60).collect();
-                return Err(err(number, format!("expected {columns} numbers, found '{shown}'")));
-            }
             Line::Values(1) if columns == 0 && pts_count.is_none() && values[0].fract() == 0.0 && values[0] >= 0.0 => {
                 // PTS: the point count on its own line.
                 pts_count = Some(values[0] as u64);
@@ -280,18 +276,14 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
                 first_data_line = number;
                 samples.push(values.clone());
             }
-            Line::Values(c) if c != columns => {
-                return Err(err(
-                    number,
-                    format!("{c} values, but the first point (line {first_data_line}) has {columns}"),
-                ));
-            }
-            Line::Values(_) => {
+            Line::Values(c) if c == columns => {
                 samples.push(values.clone());
                 if samples.len() >= SAMPLE_LINES {
                     break;
                 }
             }
+            // A line that does not fit the first point: pass 2 reports it, where it is.
+            Line::Words | Line::Values(_) => break,
         }
     }
     if columns == 0 {
@@ -317,7 +309,7 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     });
 
     // Pass 2: every point.
-    let mut out = CloudBuilder::new(normals.is_some(), colours.is_some());
+    let mut out = CloudBuilder::new(normals.is_some(), colours.is_some(), true);
     // At least 6 bytes ("0 0 0\n") per point: a bound the input justifies.
     out.reserve((text.len() / 6).min(1 << 22));
     let mut declared = 0u64;

@@ -97,7 +97,7 @@ const MAX_CHUNK_ROWS: usize = 2048;
 pub const PREDICT_SEGMENT: usize = 256;
 /// Most rows per block, whatever the binding limit allows: keeps each `K~` buffer moderate
 /// (≤ 256 KiB per inducing point). The exact sums would not need it.
-const MAX_BLOCK_ROWS: usize = 65535;
+pub const MAX_BLOCK_ROWS: usize = 65535;
 /// Workgroup size of the 1-D kernels (`residual`, `grad_sum`).
 const WG: u32 = 64;
 /// Queries per predict submission, whatever the limits allow: short enough not to trip a

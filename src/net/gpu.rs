@@ -44,6 +44,12 @@ const WG: u32 = 64;
 /// under a second per chunk on llvmpipe).
 pub const MAX_DECODE_CHUNK: usize = 65536;
 
+/// The most queries one decode submission can hold when bindings are at most `binding` bytes:
+/// the largest per-query binding is the features, `c_dim` f32 (at least 3, the query itself).
+pub fn max_decode_queries(binding: u64, c_dim: usize) -> usize {
+    (binding / (c_dim.max(3) * 4) as u64).max(1) as usize
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct EncParams {
@@ -402,9 +408,7 @@ impl GpuNet {
     /// Sets the queries per decode submission (clamped to 1 ..= what one binding holds); for
     /// tests, and for callers that want shorter or longer submissions.
     pub fn set_chunk_queries(&mut self, n: usize) {
-        // The largest per-query binding is the features: c_dim f32.
-        let max = self.gpu.rows_per_binding((self.config.c_dim.max(3) * 4) as u64);
-        self.chunk = n.clamp(1, max);
+        self.chunk = n.clamp(1, max_decode_queries(crate::gpu::binding_limit(&self.gpu.limits), self.config.c_dim));
     }
 
     fn enc_slot(&self, name: &str) -> Slot {

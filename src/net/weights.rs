@@ -61,6 +61,13 @@ pub struct NetConfig {
 }
 
 impl NetConfig {
+    /// The built-in prior's sizes, parsed once: the preflight asks for them on every settings
+    /// change, and parsing validates every tensor of the 2 MB file.
+    pub fn prior() -> Result<NetConfig, NetError> {
+        static CONFIG: std::sync::OnceLock<Result<NetConfig, NetError>> = std::sync::OnceLock::new();
+        CONFIG.get_or_init(|| Weights::prior().map(|w| w.config().clone())).clone()
+    }
+
     /// Reads and checks the sizes in a safetensors `__metadata__` map.
     pub fn from_metadata(meta: &BTreeMap<String, String>) -> Result<NetConfig, NetError> {
         let get = |key: &str| {

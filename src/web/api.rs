@@ -225,8 +225,8 @@ pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Func
     for w in parsed.warnings() {
         notices.push(&JsValue::from_str(&w));
     }
-    if let (None, Some(b)) = (opts.settings.units, parsed.cloud.bounds()) {
-        let g = crate::units::guess(b.longest_side() as f64, parsed.stated_units);
+    if opts.settings.units.is_none() {
+        let g = parsed.units_guess();
         if g.warn {
             notices.push(&JsValue::from_str(&format!(
                 "no units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): choose mm if they are millimetres",
@@ -342,9 +342,9 @@ impl Options {
 #[wasm_bindgen]
 pub fn preflight(points: usize, colours: bool, options: JsValue, viewer: &super::Viewer) -> Result<Vec<String>, JsValue> {
     let opts = Options::from_js(&options)?;
-    let weights = crate::net::Weights::prior().map_err(|e| error("NetError", &e.to_string()))?;
+    let config = crate::net::NetConfig::prior().map_err(|e| error("NetError", &e.to_string()))?;
     let facts = crate::plan::DeviceFacts::of(viewer.gpu());
-    Ok(crate::plan::memory_plan(points, colours, &opts.settings, weights.config(), &facts).lines())
+    Ok(crate::plan::memory_plan(points, colours, &opts.settings, &config, &facts).lines())
 }
 
 /// `o[key]`, or None when it is undefined or null.
@@ -371,7 +371,7 @@ fn integer(o: &JsValue, key: &str, lo: f64, hi: f64) -> Result<Option<f64>, JsVa
     }
 }
 
-fn set(o: &Object, key: &str, value: impl Into<JsValue>) {
+pub(super) fn set(o: &Object, key: &str, value: impl Into<JsValue>) {
     let _ = Reflect::set(o, &JsValue::from_str(key), &value.into());
 }
 

@@ -67,7 +67,7 @@ impl Cloud {
     /// A one-line description of the file's layout (format, properties).
     #[wasm_bindgen(getter)]
     pub fn layout(&self) -> String {
-        self.parsed.describe_layout().to_string()
+        self.parsed.layout.clone()
     }
 
     /// The format recognised from the content: "PLY", "text (XYZ/PTS/CSV)", "LAS/LAZ", "E57".
@@ -93,16 +93,12 @@ impl Cloud {
     /// bool, warn: bool, reason }`; `warn` means millimetres are likely and no units were given.
     #[wasm_bindgen(getter)]
     pub fn units_guess(&self) -> JsValue {
-        let longest = self.parsed.cloud.bounds().map_or(0.0, |b| b.longest_side() as f64);
-        let g = crate::units::guess(longest, self.parsed.stated_units);
+        let g = self.parsed.units_guess();
         let o = js_sys::Object::new();
-        let set = |k: &str, v: JsValue| {
-            let _ = js_sys::Reflect::set(&o, &k.into(), &v);
-        };
-        set("units", g.units.map_or(JsValue::NULL, |u| u.code().into()));
-        set("stated", self.parsed.stated_units.is_some().into());
-        set("warn", g.warn.into());
-        set("reason", g.reason.into());
+        api::set(&o, "units", g.units.map_or(JsValue::NULL, |u| u.code().into()));
+        api::set(&o, "stated", self.parsed.stated_units.is_some());
+        api::set(&o, "warn", g.warn);
+        api::set(&o, "reason", g.reason);
         o.into()
     }
 }

@@ -85,6 +85,27 @@ struct MeshDraw {
     radius: f32,
 }
 
+impl MeshDraw {
+    /// Draws `count` indices of `indices` over the mesh's vertex buffers with `pipeline`: the
+    /// triangles for the shaded mesh, the edge list for the wireframe.
+    fn draw(
+        &self,
+        pass: &mut wgpu::RenderPass<'_>,
+        pipeline: &wgpu::RenderPipeline,
+        bind_group: &wgpu::BindGroup,
+        indices: &wgpu::Buffer,
+        count: u32,
+    ) {
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, bind_group, &[]);
+        pass.set_vertex_buffer(0, self.positions.slice(..));
+        pass.set_vertex_buffer(1, self.normals.slice(..));
+        pass.set_vertex_buffer(2, self.colors.slice(..));
+        pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+        pass.draw_indexed(0..count, 0, 0..1);
+    }
+}
+
 struct CloudDraw {
     positions: wgpu::Buffer,
     colors: wgpu::Buffer,
@@ -591,22 +612,10 @@ impl Viewer {
                 multiview_mask: None,
             });
             if let (Some(m), true) = (&self.mesh, self.show_mesh) {
-                pass.set_pipeline(&self.mesh_pipeline);
-                pass.set_bind_group(0, &self.mesh_bind_group, &[]);
-                pass.set_vertex_buffer(0, m.positions.slice(..));
-                pass.set_vertex_buffer(1, m.normals.slice(..));
-                pass.set_vertex_buffer(2, m.colors.slice(..));
-                pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..m.index_count, 0, 0..1);
+                m.draw(&mut pass, &self.mesh_pipeline, &self.mesh_bind_group, &m.indices, m.index_count);
             }
             if let (Some(m), true) = (&self.mesh, self.show_wire) {
-                pass.set_pipeline(&self.wire_pipeline);
-                pass.set_bind_group(0, &self.wire_bind_group, &[]);
-                pass.set_vertex_buffer(0, m.positions.slice(..));
-                pass.set_vertex_buffer(1, m.normals.slice(..));
-                pass.set_vertex_buffer(2, m.colors.slice(..));
-                pass.set_index_buffer(m.edges.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..m.edge_index_count, 0, 0..1);
+                m.draw(&mut pass, &self.wire_pipeline, &self.wire_bind_group, &m.edges, m.edge_index_count);
             }
             if let (Some(c), true) = (&self.cloud, self.show_cloud) {
                 pass.set_pipeline(&self.pipeline);
