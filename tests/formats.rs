@@ -176,22 +176,16 @@ fn out_dir() -> PathBuf {
     d
 }
 
+/// The box of `points`: (min, max) per axis.
+fn bounds<'a>(points: impl IntoIterator<Item = &'a [f64; 3]>) -> ([f64; 3], [f64; 3]) {
+    points.into_iter().fold(([f64::MAX; 3], [f64::MIN; 3]), |(lo, hi), p| {
+        ([0, 1, 2].map(|a| lo[a].min(p[a])), [0, 1, 2].map(|a| hi[a].max(p[a])))
+    })
+}
+
 /// The bounds of the GLB's positions, with the root translation added (f64).
 fn glb_bounds(path: &Path) -> ([f64; 3], [f64; 3]) {
-    let (doc, buffers, _) = gltf::import(path).unwrap();
-    let node = doc.nodes().next().unwrap();
-    let t = node.transform().decomposed().0.map(f64::from);
-    let mesh = node.mesh().unwrap();
-    let prim = mesh.primitives().next().unwrap();
-    let reader = prim.reader(|b| Some(&buffers[b.index()]));
-    let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
-    for p in reader.read_positions().unwrap() {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a] as f64 + t[a]);
-            hi[a] = hi[a].max(p[a] as f64 + t[a]);
-        }
-    }
-    (lo, hi)
+    bounds(&glb_vertices(path).0)
 }
 
 /// Positions (with the root translation added, f64) and COLOR_0 (if any) of a GLB.
@@ -227,13 +221,7 @@ fn reconstruct_reads_every_format() {
         })
         .collect();
     cases.push((xyz, [0.0; 3], false));
-    let (lo0, hi0) = spot.iter().fold(([f64::MAX; 3], [f64::MIN; 3]), |(mut lo, mut hi), p| {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-        (lo, hi)
-    });
+    let (lo0, hi0) = bounds(&spot);
     let mut coloured = Vec::new();
     for (input, offset, has_colour) in cases {
         let name = input.file_name().unwrap().to_string_lossy().into_owned();
@@ -241,13 +229,8 @@ fn reconstruct_reads_every_format() {
         let (ok, log) = run(&["reconstruct", input.to_str().unwrap(), "--method", "network", "--resolution", "40", "-o", out.to_str().unwrap()]);
         assert!(ok, "{name}: {log}");
         let (positions, colours) = glb_vertices(&out);
-        let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
-        for p in &positions {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a] - offset[a]);
-                hi[a] = hi[a].max(p[a] - offset[a]);
-            }
-        }
+        let unshifted: Vec<[f64; 3]> = positions.iter().map(|p| [0, 1, 2].map(|a| p[a] - offset[a])).collect();
+        let (lo, hi) = bounds(&unshifted);
         // Points from half the shape (formats 4, 5, 9, 10 hold every other point) still span it.
         for a in 0..3 {
             let tol = 0.08 * (hi0[a] - lo0[a]);
@@ -256,12 +239,11 @@ fn reconstruct_reads_every_format() {
         assert_eq!(colours.is_some(), has_colour, "{name}");
         if let Some(colours) = colours {
             // The ramp is linear in position: a vertex's colour should be the ramp's there.
-            let err: f64 = positions
+            let err: f64 = unshifted
                 .iter()
                 .zip(&colours)
                 .map(|(p, c)| {
-                    let q = [0, 1, 2].map(|a| p[a] - offset[a]);
-                    let want = colour(q, formula);
+                    let want = colour(*p, formula);
                     (0..3).map(|a| (c[a] as f64 - want[a] as f64).abs()).sum::<f64>() / 3.0
                 })
                 .sum::<f64>()

@@ -120,7 +120,7 @@ async function openFile(file, source = null) {
   const points = cloud.sample_positions(100_000);
   // The worker reads the file itself for each run; the preflight needs only the counts (read
   // before free: the Cloud's getters fail once it is freed).
-  input = { name: file.name, file, source, points, count: cloud.count, colours: cloud.has_colors, unitsWarn: g.warn };
+  input = { name: file.name, file, source, points, count: cloud.count, colours: cloud.has_colors };
   cloud.free();
   updatePreflight();
   updateShareLink();
@@ -253,7 +253,9 @@ let job = null; // { options, started, timer, fraction, stage, abort }
 async function run() {
   if (!input || job) return;
   const options = readOptions();
-  options.name = input.name.replace(/\.(ply|las|laz|e57|xyz|xyzrgb|pts|csv|txt|asc)$/i, '') || 'mesh';
+  // The download is named after the input, without a cloud extension (the readers' own list).
+  const ext = input.name.match(/\.[^.]+$/)?.[0].toLowerCase();
+  options.name = (nk.cloud_extensions().includes(ext) ? input.name.slice(0, -ext.length) : input.name) || 'mesh';
   const abort = new AbortController();
   const me = { options, started: performance.now(), fraction: 0, stage: 'setup', timer: setInterval(tick, 100), abort };
   job = me;
@@ -508,6 +510,8 @@ async function boot() {
   if (!navigator.gpu) { show(NO_WEBGPU, 'error'); document.body.dataset.state = 'no-webgpu'; return; }
   try {
     nk = await wasmReady();
+    // The file picker offers what the readers accept (the same list as the CLI).
+    $('file-input').accept = [...nk.cloud_extensions(), 'application/octet-stream', 'text/plain'].join(',');
     fitCanvas();
     viewer = await nk.Viewer.create($('view'));
     $('adapter').textContent = `GPU: ${viewer.adapter}`;

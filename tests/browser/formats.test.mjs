@@ -11,7 +11,7 @@ import { execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { serve, browser, requireDist, DIST, EVAL, ARTIFACTS, ROOT } from './harness.mjs';
+import { serve, browser, requireDist, readGlb, runToEnd, watertight, DIST, EVAL, ARTIFACTS, ROOT } from './harness.mjs';
 
 const FIXTURES = path.join(ROOT, 'tests/fixtures/formats');
 const MANIFEST = JSON.parse(fs.readFileSync(path.join(FIXTURES, 'manifest.json'), 'utf8'));
@@ -83,13 +83,9 @@ const panel = (page) => page.evaluate(() => {
 async function reconstruct(page) {
   await page.selectOption('#method', 'network');
   await page.selectOption('#resolution', '64');
-  const t0 = Date.now();
-  // Not page.click (see reconstruct.test.mjs: its layout wait counts slow SwiftShader frames).
-  await page.evaluate(() => document.getElementById('run').click());
-  await page.waitForFunction(() => document.body.dataset.job === 'running' || document.body.dataset.outcome, null, { timeout: 30_000 });
-  await page.waitForFunction(() => document.body.dataset.job === 'idle', null, { timeout: RUN_TIMEOUT, polling: 250 });
+  const seconds = await runToEnd(page, RUN_TIMEOUT);
   assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
-  return (Date.now() - t0) / 1000;
+  return seconds;
 }
 
 /** Downloads the GLB, saves it under artifacts/, validates it (Khronos) and reads it. */
@@ -101,52 +97,6 @@ async function downloadGlb(page, expectedName) {
   // Exit code 0: no errors and no warnings.
   execFileSync('node', [path.join(ROOT, 'tests/validate_glb.mjs'), file], { stdio: 'pipe' });
   return readGlb(fs.readFileSync(file));
-}
-
-/** A GLB's JSON, its root node, the first primitive's accessors read as arrays, and their min/max. */
-function readGlb(buf) {
-  assert.equal(buf.readUInt32LE(0), 0x46546c67, 'glTF magic');
-  assert.equal(buf.readUInt32LE(8), buf.length, 'GLB length field');
-  const jsonLen = buf.readUInt32LE(12);
-  const json = JSON.parse(buf.subarray(20, 20 + jsonLen).toString('utf8'));
-  const binAt = 20 + jsonLen;
-  assert.equal(buf.readUInt32LE(binAt + 4), 0x004e4942, 'BIN chunk');
-  const bin = buf.subarray(binAt + 8, binAt + 8 + buf.readUInt32LE(binAt));
-  const COMPONENTS = { SCALAR: 1, VEC3: 3, VEC4: 4 };
-  const READ = { 5121: [1, (o) => bin.readUInt8(o)], 5125: [4, (o) => bin.readUInt32LE(o)], 5126: [4, (o) => bin.readFloatLE(o)] };
-  const read = (index) => {
-    const acc = json.accessors[index];
-    const view = json.bufferViews[acc.bufferView];
-    const n = COMPONENTS[acc.type];
-    const [size, get] = READ[acc.componentType];
-    const stride = view.byteStride ?? n * size;
-    const start = (view.byteOffset ?? 0) + (acc.byteOffset ?? 0);
-    const out = new Float64Array(acc.count * n);
-    for (let i = 0; i < acc.count; i++) for (let c = 0; c < n; c++) out[i * n + c] = get(start + i * stride + c * size);
-    return { acc, n, data: out };
-  };
-  const prim = json.meshes[0].primitives[0];
-  const positions = read(prim.attributes.POSITION);
-  const indices = read(prim.indices);
-  const colors = prim.attributes.COLOR_0 === undefined ? null : read(prim.attributes.COLOR_0);
-  return { json, node: json.nodes[json.scenes[json.scene ?? 0].nodes[0]], prim, positions, indices, colors, min: positions.acc.min, max: positions.acc.max };
-}
-
-/** Every directed edge once, and its reverse present: closed and consistently oriented. */
-function watertight(indices, vertices) {
-  const edges = new Map();
-  for (let t = 0; t < indices.length; t += 3) {
-    for (let k = 0; k < 3; k++) {
-      const key = indices[t + k] * vertices + indices[t + ((k + 1) % 3)];
-      edges.set(key, (edges.get(key) ?? 0) + 1);
-    }
-  }
-  let bad = 0;
-  for (const [key, n] of edges) {
-    const a = Math.floor(key / vertices), b = key % vertices;
-    if (n !== 1 || edges.get(b * vertices + a) !== 1) bad++;
-  }
-  return { edges: edges.size, bad };
 }
 
 /** The mesh's box (positions + root translation) against `want`, within `frac` of the extent per axis. */
@@ -203,7 +153,7 @@ test('LAZ (LAS 1.4, point format 7, far-off coordinates, colours): panel, prefli
     for (let a = 0; a < 3; a++) assert.ok(Math.abs(t[a] - origin[a]) <= 1, `translation ${t} vs ${origin}`);
     const lasBounds = { min: SPOT.min.map((v, a) => v + LAS_OFFSET[a]), max: SPOT.max.map((v, a) => v + LAS_OFFSET[a]) };
     assertBoundsNear(glb, lasBounds, 0.08, 'LAZ');
-    const w = watertight(glb.indices.data, glb.positions.acc.count);
+    const w = watertight(glb.indices.data, glb.vertices);
     assert.equal(w.bad, 0, `${w.bad} of ${w.edges} directed edges lack a unique reverse`);
 
     // COLOR_0 carries the cloud's colours: the fixture's colour is a ramp over the original
@@ -254,7 +204,7 @@ test('E57 with two posed scans: panel, stated metres, a watertight mesh where sp
     const seconds = await reconstruct(page);
     assert.equal(await page.textContent('#r-watertight'), 'yes');
     const glb = await downloadGlb(page, 'spot-two-scans.glb');
-    const w = watertight(glb.indices.data, glb.positions.acc.count);
+    const w = watertight(glb.indices.data, glb.vertices);
     assert.equal(w.bad, 0, `${w.bad} of ${w.edges} directed edges lack a unique reverse`);
     assert.equal(glb.node.translation, undefined);
     assert.ok(glb.colors, 'no COLOR_0');

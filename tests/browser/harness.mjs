@@ -1,5 +1,7 @@
 // Shared pieces of the browser tests: a static server for dist/ on 127.0.0.1 and Debian's
-// Chromium driven by playwright-core, with WebGPU on SwiftShader.
+// Chromium driven by playwright-core, with WebGPU on SwiftShader; and readers for the GLBs the
+// page downloads.
+import assert from 'node:assert/strict';
 import http from 'node:http';
 import fs from 'node:fs';
 import path from 'node:path';
@@ -61,4 +63,66 @@ export function requireDist() {
   if (!fs.existsSync(path.join(DIST, 'index.html'))) {
     throw new Error('dist/ is missing: build it with NKRR_BUILD_ONLY=1 scripts/serve.sh');
   }
+}
+
+/** A GLB's JSON, its root node, the first primitive's accessors read as arrays (`vertices`:
+ *  the position count), and the positions' min/max. */
+export function readGlb(buf) {
+  assert.equal(buf.readUInt32LE(0), 0x46546c67, 'glTF magic');
+  assert.equal(buf.readUInt32LE(4), 2, 'glTF version 2');
+  assert.equal(buf.readUInt32LE(8), buf.length, 'GLB length field');
+  const jsonLen = buf.readUInt32LE(12);
+  assert.equal(buf.readUInt32LE(16), 0x4e4f534a, 'JSON chunk');
+  const json = JSON.parse(buf.subarray(20, 20 + jsonLen).toString('utf8'));
+  const binAt = 20 + jsonLen;
+  assert.equal(buf.readUInt32LE(binAt + 4), 0x004e4942, 'BIN chunk');
+  const bin = buf.subarray(binAt + 8, binAt + 8 + buf.readUInt32LE(binAt));
+  const COMPONENTS = { SCALAR: 1, VEC3: 3, VEC4: 4 };
+  const READ = { 5121: [1, (o) => bin.readUInt8(o)], 5125: [4, (o) => bin.readUInt32LE(o)], 5126: [4, (o) => bin.readFloatLE(o)] };
+  const read = (index) => {
+    const acc = json.accessors[index];
+    const view = json.bufferViews[acc.bufferView];
+    const n = COMPONENTS[acc.type];
+    const [size, get] = READ[acc.componentType];
+    const stride = view.byteStride ?? n * size;
+    const start = (view.byteOffset ?? 0) + (acc.byteOffset ?? 0);
+    const out = new Float64Array(acc.count * n);
+    for (let i = 0; i < acc.count; i++) for (let c = 0; c < n; c++) out[i * n + c] = get(start + i * stride + c * size);
+    return { acc, n, data: out };
+  };
+  const prim = json.meshes[0].primitives[0];
+  const positions = read(prim.attributes.POSITION);
+  const indices = read(prim.indices);
+  assert.equal(indices.acc.componentType, 5125, 'u32 indices');
+  const colors = prim.attributes.COLOR_0 === undefined ? null : read(prim.attributes.COLOR_0);
+  return { json, node: json.nodes[json.scenes[json.scene ?? 0].nodes[0]], prim, positions, indices, colors, vertices: positions.acc.count, min: positions.acc.min, max: positions.acc.max };
+}
+
+/** Every directed edge once, and its reverse present: closed and consistently oriented. */
+export function watertight(indices, vertices) {
+  const edges = new Map();
+  for (let t = 0; t < indices.length; t += 3) {
+    for (let k = 0; k < 3; k++) {
+      const key = indices[t + k] * vertices + indices[t + ((k + 1) % 3)];
+      edges.set(key, (edges.get(key) ?? 0) + 1);
+    }
+  }
+  let bad = 0;
+  for (const [key, n] of edges) {
+    const a = Math.floor(key / vertices), b = key % vertices;
+    if (n !== 1 || edges.get(b * vertices + a) !== 1) bad++;
+  }
+  return { edges: edges.size, bad };
+}
+
+/** Presses Reconstruct and waits (up to `timeout` ms) until the run has ended; its seconds. */
+export async function runToEnd(page, timeout) {
+  const t0 = Date.now();
+  // Not page.click: its wait for a stable layout counts animation frames, which SwiftShader
+  // delivers slowly while it draws millions of points.
+  await page.evaluate(() => document.getElementById('run').click());
+  // Started (and maybe already ended, if it failed at once).
+  await page.waitForFunction(() => document.body.dataset.job === 'running' || document.body.dataset.outcome, null, { timeout: 30_000 });
+  await page.waitForFunction(() => document.body.dataset.job === 'idle', null, { timeout, polling: 250 });
+  return (Date.now() - t0) / 1000;
 }

@@ -9,7 +9,7 @@ import { execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { serve, browser, openPage, requireDist, DIST, EVAL, ARTIFACTS, ROOT } from './harness.mjs';
+import { serve, browser, openPage, requireDist, readGlb, runToEnd, watertight, DIST, EVAL, ARTIFACTS, ROOT } from './harness.mjs';
 
 const SCAN = path.join(EVAL, 'spot-3k.ply');
 const RUN_TIMEOUT = 600_000;
@@ -59,17 +59,6 @@ async function readyPage(b) {
   return { page, errors };
 }
 
-async function runToEnd(page) {
-  const t0 = Date.now();
-  // Not page.click: its wait for a stable layout counts animation frames, which SwiftShader
-  // delivers slowly while it draws millions of points.
-  await page.evaluate(() => document.getElementById('run').click());
-  // Started (and maybe already ended, if it failed at once).
-  await page.waitForFunction(() => document.body.dataset.job === 'running' || document.body.dataset.outcome, null, { timeout: 30_000 });
-  await page.waitForFunction(() => document.body.dataset.job === 'idle', null, { timeout: RUN_TIMEOUT, polling: 250 });
-  return (Date.now() - t0) / 1000;
-}
-
 /** x, y, z of the vertex element of a PLY (any numeric property types, any format but ASCII). */
 function plyBounds(buf) {
   const end = buf.indexOf('end_header\n');
@@ -97,53 +86,13 @@ function plyBounds(buf) {
   return { min, max };
 }
 
-/** The JSON and BIN chunks of a GLB, and the first primitive's positions' min/max and indices. */
-function readGlb(buf) {
-  assert.equal(buf.readUInt32LE(0), 0x46546c67, 'glTF magic');
-  assert.equal(buf.readUInt32LE(4), 2, 'glTF version 2');
-  assert.equal(buf.readUInt32LE(8), buf.length, 'GLB length field');
-  const jsonLen = buf.readUInt32LE(12);
-  assert.equal(buf.readUInt32LE(16), 0x4e4f534a, 'JSON chunk');
-  const json = JSON.parse(buf.subarray(20, 20 + jsonLen).toString('utf8'));
-  const binAt = 20 + jsonLen;
-  const binLen = buf.readUInt32LE(binAt);
-  assert.equal(buf.readUInt32LE(binAt + 4), 0x004e4942, 'BIN chunk');
-  const bin = buf.subarray(binAt + 8, binAt + 8 + binLen);
-  const prim = json.meshes[0].primitives[0];
-  const pos = json.accessors[prim.attributes.POSITION];
-  const idx = json.accessors[prim.indices];
-  assert.equal(idx.componentType, 5125, 'u32 indices');
-  const view = json.bufferViews[idx.bufferView];
-  const start = (view.byteOffset ?? 0) + (idx.byteOffset ?? 0);
-  const indices = new Uint32Array(bin.buffer.slice(bin.byteOffset + start, bin.byteOffset + start + idx.count * 4));
-  return { json, min: pos.min, max: pos.max, vertices: pos.count, indices };
-}
-
-/** Every directed edge once, and its reverse present: closed and consistently oriented. */
-function watertight(indices, vertices) {
-  const edges = new Map();
-  for (let t = 0; t < indices.length; t += 3) {
-    const tri = [indices[t], indices[t + 1], indices[t + 2]];
-    for (let k = 0; k < 3; k++) {
-      const key = tri[k] * vertices + tri[(k + 1) % 3];
-      edges.set(key, (edges.get(key) ?? 0) + 1);
-    }
-  }
-  let bad = 0;
-  for (const [key, n] of edges) {
-    const a = Math.floor(key / vertices), b = key % vertices;
-    if (n !== 1 || edges.get(b * vertices + a) !== 1) bad++;
-  }
-  return { edges: edges.size, bad };
-}
-
 test('spot-3k: reconstruct in the worker, see the mesh, download a valid watertight GLB', { timeout: RUN_TIMEOUT + 120_000 }, async () => {
   const b = await browser();
   try {
     const { page, errors } = await readyPage(b);
     await page.selectOption('#method', 'network');
     await page.selectOption('#resolution', '64');
-    const seconds = await runToEnd(page);
+    const seconds = await runToEnd(page, RUN_TIMEOUT);
     assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
     const probe = await page.evaluate(() => window.__probe);
     const stats = await page.evaluate(() => ({
@@ -187,9 +136,9 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     execFileSync('node', [path.join(ROOT, 'tests/validate_glb.mjs'), file], { stdio: 'pipe' });
 
     const glb = readGlb(fs.readFileSync(file));
-    const w = watertight(glb.indices, glb.vertices);
+    const w = watertight(glb.indices.data, glb.vertices);
     assert.equal(w.bad, 0, `${w.bad} of ${w.edges} directed edges lack a unique reverse`);
-    assert.equal(glb.indices.length / 3, Number(stats.triangles.replace(/,/g, '')));
+    assert.equal(glb.indices.data.length / 3, Number(stats.triangles.replace(/,/g, '')));
 
     // The optional PLY download: the same mesh, binary, with its faces.
     const [plyDl] = await Promise.all([page.waitForEvent('download'), page.click('#download-ply')]);
@@ -200,12 +149,12 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     const head = plyBytes.subarray(0, plyBytes.indexOf('end_header\n') + 11).toString('latin1');
     assert.match(head, /^ply\nformat binary_little_endian 1\.0\n/);
     assert.equal(Number(head.match(/element vertex (\d+)/)[1]), glb.vertices);
-    assert.equal(Number(head.match(/element face (\d+)/)[1]), glb.indices.length / 3);
-    assert.equal(plyBytes.length, head.length + glb.vertices * 24 + (glb.indices.length / 3) * 13);
+    assert.equal(Number(head.match(/element face (\d+)/)[1]), glb.indices.data.length / 3);
+    assert.equal(plyBytes.length, head.length + glb.vertices * 24 + (glb.indices.data.length / 3) * 13);
 
     // The live trim: the slider drops triangles far from the points without a re-run, and the
     // downloads follow it (OBJ and STL here, written on the page).
-    const total = glb.indices.length / 3;
+    const total = glb.indices.data.length / 3;
     await page.evaluate(() => { const t = document.getElementById('trim'); t.value = '2'; t.dispatchEvent(new Event('input')); });
     const trimmed = Number(await page.evaluate(() => document.body.dataset.trimmed));
     assert.ok(trimmed > 0 && trimmed < total / 2, `trimmed ${trimmed} of ${total}`);
@@ -260,7 +209,7 @@ test('cancel returns the page to idle at once; the worker stops and a second run
     const workers = await page.evaluate(() => document.body.dataset.workers);
     console.log(`cancel in meshing: idle after ${idleMs} ms, worker settled after ${Date.now() - t0} ms, workers started: ${workers}`);
 
-    const seconds = await runToEnd(page);
+    const seconds = await runToEnd(page, RUN_TIMEOUT);
     assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
     assert.equal(await page.textContent('#r-watertight'), 'yes');
     console.log(`second run: ${seconds.toFixed(1)} s`);
@@ -293,7 +242,7 @@ test('cancel during CPU-bound nkrr tuning replaces the deaf worker; the next run
     assert.equal(workers, '2', 'the busy worker should have been replaced');
 
     await page.selectOption('#method', 'network');
-    const seconds = await runToEnd(page);
+    const seconds = await runToEnd(page, RUN_TIMEOUT);
     assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
     console.log(`run on the new worker: ${seconds.toFixed(1)} s`);
     assert.deepEqual(errors, []);
@@ -437,7 +386,7 @@ test('a GPU device lost mid-run is an error message; the next run gets a new dev
     console.log(`after the loss: ${msg}`);
     assert.match(msg, /lost/);
 
-    const seconds = await runToEnd(page);
+    const seconds = await runToEnd(page, RUN_TIMEOUT);
     assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
     assert.equal(await page.evaluate(() => document.body.dataset.workers), '2');
     console.log(`run after the loss: ${seconds.toFixed(1)} s`);
@@ -478,7 +427,7 @@ for (const [n, label] of [[300_000, '300k'], [20_000_000, '20M']]) test(`a large
     assert.ok((await page.textContent('#warnings')).includes(`shows ${shown} of the points`), await page.textContent('#warnings'));
     await page.selectOption('#method', 'network');
     await page.selectOption('#resolution', '64');
-    const seconds = await runToEnd(page);
+    const seconds = await runToEnd(page, RUN_TIMEOUT);
     assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
     assert.equal(await page.textContent('#r-watertight'), 'yes');
     assert.match(await page.textContent('#r-notices'), /subsample of 100000/);
