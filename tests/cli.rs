@@ -13,7 +13,7 @@ fn nkrr(args: &[&str]) -> (i32, String, String) {
 }
 
 fn eval(name: &str) -> String {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/eval").join(name).to_string_lossy().into_owned()
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/eval").join(name).to_string_lossy().into_owned()
 }
 
 fn temp_file(name: &str, bytes: &[u8]) -> String {

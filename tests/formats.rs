@@ -23,7 +23,7 @@ fn manifest() -> Value {
 
 /// spot-3k.ply's points, in f64.
 fn spot() -> Vec<[f64; 3]> {
-    let bytes = std::fs::read(common::repo_root().join("../shared/data/eval/spot-3k.ply")).unwrap();
+    let bytes = std::fs::read(common::repo_root().join("tests/data/eval/spot-3k.ply")).unwrap();
     let c = nkrr::io::ply::read_ply(&bytes).unwrap().cloud;
     c.positions.iter().map(|p| p.map(f64::from)).collect()
 }

@@ -198,7 +198,7 @@ fn unusable_meshes_are_errors() {
 }
 
 fn eval_file(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/eval").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/eval").join(name)
 }
 
 /// spot.obj against a copy scaled by 1.02 about its bounding-box centre and moved by 1 % of its

@@ -1207,7 +1207,7 @@ fn error_negative_list_count() {
 
 #[test]
 fn evaluation_clouds() {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/eval");
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/eval");
     let mut seen = 0;
     for name in [
         "cow",

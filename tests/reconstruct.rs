@@ -1,7 +1,7 @@
 //! What a reconstruction carries besides the surface (issue 8): vertex colours from a coloured
 //! cloud, trimming the closing bubble of a one-sided scan, and far-off (georeferenced) clouds.
 //! Each test runs the real pipeline (the network prior at resolution 64, which is quick on
-//! lavapipe) on `../shared/data/eval/spot-10k.ply`.
+//! lavapipe) on `tests/data/eval/spot-10k.ply`.
 
 mod common;
 
@@ -16,7 +16,7 @@ use nkrr::sample::{mean_spacing, PointIndex};
 use nkrr::PointCloud;
 
 fn spot() -> PointCloud {
-    let path = common::repo_root().join("../shared/data/eval/spot-10k.ply");
+    let path = common::repo_root().join("tests/data/eval/spot-10k.ply");
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     nkrr::io::ply::read_ply(&bytes).unwrap().cloud
 }

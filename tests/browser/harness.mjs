@@ -10,7 +10,7 @@ import { chromium } from 'playwright-core';
 
 export const ROOT = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../..');
 export const DIST = path.join(ROOT, 'dist');
-export const EVAL = path.resolve(ROOT, '../shared/data/eval');
+export const EVAL = path.join(ROOT, 'tests/data/eval');
 export const ARTIFACTS = path.join(ROOT, 'artifacts');
 
 const TYPES = {

@@ -1,4 +1,4 @@
-// The page as a user meets it: load, pick a scan from ../shared/data/eval, see it.
+// The page as a user meets it: load, pick a scan from tests/data/eval, see it.
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';

@@ -4,7 +4,7 @@ Open3D where it is importable) and agree with each other and with the input clou
     .venv-formats/bin/python -m pytest -q tests/formats
 
 NKRR_BIN picks the binary (default target/debug/nkrr, relative to the repository root). A
-missing binary or missing ../shared/data/eval/spot-3k.ply fails the tests; it does not skip them.
+missing binary or missing tests/data/eval/spot-3k.ply fails the tests; it does not skip them.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import pytest
 import trimesh
 
 REPO = Path(__file__).resolve().parents[2]
-SPOT = (REPO / "../shared/data/eval/spot-3k.ply").resolve()
+SPOT = REPO / "tests" / "data" / "eval" / "spot-3k.ply"
 FORMATS = ("glb", "ply", "obj", "stl")
 RESOLUTION = "48"
 BOUNDS_TOLERANCE = 0.05  # of the cloud's largest extent

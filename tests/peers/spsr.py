@@ -1,5 +1,5 @@
 """Peer baseline: Screened Poisson surface reconstruction (Kazhdan & Hoppe 2013, Open3D's build
-of Kazhdan's PoissonRecon) with PCA normals, on the evaluation clouds of ../shared/data/eval.
+of Kazhdan's PoissonRecon) with PCA normals, on the evaluation clouds of tests/data/eval.
 
 For each cloud DATA/NAME-SIZE.ply (unoriented, noisy; see DATA/README.md):
   1. normals by PCA of the k nearest neighbours (k = 30), then a consistent orientation by
@@ -26,7 +26,7 @@ noisy points; a flipped patch becomes a dent, a hole or a sheet in the Poisson s
 needs no normals at all (its field comes from the network prior and the KRR on positions).
 
     tests/peers/setup.sh     # makes .venv-peers (tests/peers/requirements.txt)
-    .venv-peers/bin/python tests/peers/spsr.py --data ../shared/data/eval --sizes 3k,10k \
+    .venv-peers/bin/python tests/peers/spsr.py --data tests/data/eval --sizes 3k,10k \
         --out /tmp/spsr [--depth 8] [--trim 0] [--k 30] [--repeat 1] \
         [--metrics-cmd 'target/release/nkrr metrics']
 
