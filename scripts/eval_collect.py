@@ -11,7 +11,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_metrics import metrics  # noqa: E402
 
-EVAL = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "eval"
+EVAL = Path(__file__).resolve().parent.parent / "tests" / "data" / "eval"
 
 
 def log_info(log):

@@ -1,5 +1,5 @@
 """Surface metrics of a reconstruction against its ground-truth mesh, by the protocol of
-../shared/data/eval/README.md: normalise the ground truth to the unit cube (bounding-box centre
+tests/data/eval/README.md: normalise the ground truth to the unit cube (bounding-box centre
 at the origin, longest side 1), apply the same transform to the reconstruction, 100k samples on
 each surface; CD1 = mean of the two nearest-neighbour mean distances (x100); F-score at
 tau = 0.01; normal consistency = mean |n . n_nearest| both ways.

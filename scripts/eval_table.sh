@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Reconstructs every ../shared/data/eval/*-SIZE.ply with the given nkrr options and prints a
+# Reconstructs every tests/data/eval/*-SIZE.ply with the given nkrr options and prints a
 # markdown table of CD1 x100, F-score, normal consistency, watertightness and time per shape.
 #   scripts/eval_table.sh 10k --method network
 #   scripts/eval_table.sh 3k --method nkrr --m 200 --steps 30
@@ -13,12 +13,12 @@ bin=${NKRR_BIN:-target/release/nkrr}
 [ -x "$bin" ] || cargo build --release
 echo "| shape | CD1 x100 | F-score | NC | watertight | time (s) |"
 echo "| --- | --- | --- | --- | --- | --- |"
-for ply in ../shared/data/eval/*-"$size".ply; do
+for ply in tests/data/eval/*-"$size".ply; do
     name=$(basename "$ply" "-$size.ply")
     glb="$out/$name-$size.glb"
     t0=$(date +%s.%N)
     "$bin" reconstruct "$ply" -o "$glb" "$@" > "$out/$name-$size.log" 2>&1 || { echo "| $name | failed: $(tail -1 "$out/$name-$size.log") |"; continue; }
     t=$(.venv/bin/python -c "print($(date +%s.%N) - $t0)")
-    .venv/bin/python scripts/eval_metrics.py "../shared/data/eval/$name.obj" "$glb" | .venv/bin/python -c "
+    .venv/bin/python scripts/eval_metrics.py "tests/data/eval/$name.obj" "$glb" | .venv/bin/python -c "
 import json,sys; r=json.loads(sys.stdin.read()); print(f\"| $name | {r['cd1x100']:.3f} | {r['fscore']:.3f} | {r['nc']:.3f} | {'yes' if r['watertight'] else 'no'} | {float('$t'):.1f} |\")"
 done

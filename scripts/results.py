@@ -176,7 +176,7 @@ def render_phase(work, shapes, size):
         inputs = [os.path.join(work, "data", f"{shape}.obj")]
         inputs += [os.path.join(work, f"main-{shape}-{size}-{m}.glb") for m in ("network", "nkrr")]
         inputs += [os.path.join(work, "spsr", f"{shape}-{size}.obj")]
-        sh([".venv/bin/python", "../shared/tools/render.py", *inputs, "-o", tmp,
+        sh([".venv/bin/python", "scripts/render.py", *inputs, "-o", tmp,
             "--size", "150", "--samples", "150000"])
     from PIL import Image
     ims = [Image.open(os.path.join(work, f"render-{s}.png")).convert("RGB") for s in shapes]
@@ -392,10 +392,10 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w(f"- adapter (`nkrr gpu`): {adapter[0].split(';')[0] if adapter else 'unknown'} (a software Vulkan "
       "rasteriser on the CPU; nkrr's KRR then runs in f64 on the CPU, `--krr-backend auto`)")
     w(f"- settings (`nkrr eval`): `{main.get('settings', '')}`")
-    w("- data: the six eval meshes of `../shared/data/eval` (protocol in its README: ground truth "
+    w("- data: the six eval meshes of `tests/data/eval` (protocol in its README: ground truth "
       "normalised to the unit cube, 100k samples per surface, CD1 x100, F-score at 0.01, normal "
       f"consistency, IoU only where the ground truth is closed: {', '.join(gt_closed)}). The 3k and "
-      "10k clouds are the shared ones; the 500-point clouds are made here "
+      "10k clouds are the committed ones; the 500-point clouds are made here "
       "(`scripts/results_clouds.py`: uniform on the surface, Gaussian noise sigma = 0.005 x the "
       "longest bbox side, seed 3).")
     w("- GPU reference: the H100 numbers of [docs/krr.md](krr.md#nkrr-vs-the-network-alone-on-"
@@ -525,7 +525,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
 
     w("## Reconstructions beside the ground truth\n")
     w("Rows: ground truth, network, nkrr, SPSR; columns: front, side, top, 3/4 view; "
-      "3k-point clouds (`../shared/tools/render.py`).\n")
+      "3k-point clouds (`scripts/render.py`).\n")
     w(f"![renders](img/{os.path.basename(render_png)})\n")
     open(os.environ.get("RESULTS_MD", "docs/results.md"), "w").write("\n".join(L) + "\n")
     log("wrote " + os.environ.get("RESULTS_MD", "docs/results.md"))

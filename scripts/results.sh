@@ -31,6 +31,6 @@ if ! .venv-peers/bin/python -c 'import matplotlib; assert matplotlib.__version__
 fi
 
 log "clouds: target/results/data"
-.venv/bin/python scripts/results_clouds.py ../shared/data/eval target/results/data
+.venv/bin/python scripts/results_clouds.py tests/data/eval target/results/data
 .venv-peers/bin/python scripts/results.py "$@"
 log "done in $(( $(date +%s) - start )) s: docs/results.md"

@@ -1,5 +1,5 @@
 """Builds the results work folder: links to the eval meshes and 3k/10k clouds of
-../shared/data/eval, plus NAME-500.ply (500 points uniform on NAME.obj's surface, Gaussian noise
+tests/data/eval, plus NAME-500.ply (500 points uniform on NAME.obj's surface, Gaussian noise
 sigma = 0.005 x the longest bbox side, seed 3, binary little-endian PLY, x y z float32) and the
 synthetic scaling clouds scale-N.ply (N points on spot.obj, same noise, seed 4).
 usage: results_clouds.py DATA WORK"""

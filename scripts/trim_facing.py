@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The trim check of issue 8 on a one-sided scan: the points of spot-10k whose ground-truth
 surface faces +x (what a scanner on the +x side sees), reconstructed at the defaults (nkrr) with
-and without --trim, then rendered with ../shared/tools/render.py: points, closed, the faces
+and without --trim, then rendered with scripts/render.py: points, closed, the faces
 --trim removes, trimmed. Writes docs/img/trim-facing-x.png and prints the numbers.
 
 usage: .venv/bin/python scripts/trim_facing.py [NKRR_BIN]   (needs trimesh, scipy, pillow)
@@ -16,7 +16,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-EVAL = ROOT / "../shared/data/eval"
+EVAL = ROOT / "tests" / "data" / "eval"
 BIN = sys.argv[1] if len(sys.argv) > 1 else str(ROOT / "target/release/nkrr")
 
 mesh = trimesh.load(EVAL / "spot.obj", process=False)
@@ -50,5 +50,5 @@ with tempfile.TemporaryDirectory() as tmp:
               f"3 spacings (at most {d.max():.1f}), {boundary} boundary edges")
         if name == "closed":
             m.submesh([np.nonzero(far)[0]], append=True).export(removed)
-    subprocess.run([sys.executable, str(ROOT / "../shared/tools/render.py"), str(cloud), str(closed), str(removed),
+    subprocess.run([sys.executable, str(ROOT / "scripts" / "render.py"), str(cloud), str(closed), str(removed),
                     str(trimmed), "-o", str(ROOT / "docs/img/trim-facing-x.png"), "--size", "260"], check=True)
