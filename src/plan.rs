@@ -1,7 +1,9 @@
 //! The preflight: how much memory each stage of a reconstruction will take, on the GPU and on
 //! the host, against the adapter's limits, and what the pipeline will do where something does
-//! not fit. `nkrr info` and the page print it before running; [`crate::pipeline`] applies the
-//! same plan (its point count and inducing-point count), so what is said is what is done.
+//! not fit. `nkrr info` and the page print it before running; the pipeline applies the same
+//! plan (its point count and inducing-point count), so what is said is what is done. The plan
+//! is its own value ([`MemoryPlan::n`], [`MemoryPlan::m`]): the user's settings are never
+//! rewritten.
 //!
 //! The formulas follow the buffers the stages allocate (features: net/gpu.rs `encode`; pairs:
 //! the chunked decode; tuning: krr/gpu.rs `Workspace`, or the f64 reference's K_nm on the CPU;
@@ -11,7 +13,7 @@
 //! memory, so only the per-buffer limits are checked on the GPU; the totals are reported.
 
 use crate::net::NetConfig;
-use crate::pipeline::{Method, Settings};
+use crate::settings::{Method, Settings};
 
 /// What the plan needs to know about the adapter.
 #[derive(Clone, Debug, PartialEq)]
@@ -173,7 +175,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     let b = device.binding.max(1);
     let nkrr = settings.method == Method::Nkrr;
     let krr_on_gpu = settings.krr_backend.on_gpu(device.software);
-    let d: u64 = if settings.euclidean { 3 + 6 * crate::pipeline::FOURIER_OCTAVES as u64 } else { net.c };
+    let d = crate::field::input_dim(settings, cfg.c_dim) as u64;
     let mut actions = Vec::new();
 
     // Points: the encoder's per-point buffers (16·max(hb, cb) bytes a point) and, for nkrr,

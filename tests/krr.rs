@@ -11,7 +11,7 @@ use nkrr::krr::init::SplitMix64;
 use nkrr::krr::linalg;
 use nkrr::krr::{
     init_length_scales, init_params, init_z, kernel, objective, objective_and_grad, predict, tune,
-    Eval, Grad, KrrError, LengthScaleInit, Objective, Params, Problem, Reference, Settings,
+    Eval, Grad, KrrError, LengthScaleInit, Objective, Params, Problem, Reference, Ridge,
     StopReason, TuneSettings, Weighting,
 };
 
@@ -69,7 +69,7 @@ struct FdReport {
 
 /// Compare the analytic gradient block `analytic` with central differences of the loss along
 /// the coordinates `coords` of the block selected by `which` (0: log_s, 1: z).
-fn fd_check(p: &Problem, params: &Params, s: &Settings, analytic: &[f64], which: usize, coords: &[usize], h: f64) -> FdReport {
+fn fd_check(p: &Problem, params: &Params, s: &Ridge, analytic: &[f64], which: usize, coords: &[usize], h: f64) -> FdReport {
     let mut fd = Vec::with_capacity(coords.len());
     for &c in coords {
         let at = |delta: f64| {
@@ -102,7 +102,7 @@ fn run_fd(label: &str, n: usize, m: usize, d: usize, lambda: f64, jitter: Option
     let p = random_problem(n, d, seed);
     let params = random_params(&p, m, seed + 1);
     for weighting in [Weighting::Falkon, Weighting::Paper] {
-        let mut s = Settings::new(lambda, m);
+        let mut s = Ridge::new(lambda, m);
         s.weighting = weighting;
         if let Some(j) = jitter {
             s.jitter = j;
@@ -230,7 +230,7 @@ fn nystrom_solve_satisfies_normal_equations() {
     let p = random_problem(n, d, 21);
     let params = random_params(&p, m, 22);
     for jitter in [0.0, 1e-6 * m as f64] {
-        let s = Settings { lambda, jitter, weighting: Weighting::Falkon };
+        let s = Ridge { lambda, jitter, weighting: Weighting::Falkon };
         let eval = objective(&p, &params, &s).unwrap();
         let knm = kernel::k_nm(p.x(), &params.z, &params.log_s);
         let mut kj = kernel::k_mm(&params.z, &params.log_s);
@@ -264,7 +264,7 @@ fn trace_identities_hold_against_the_n_by_n_forms() {
     let (n, m, d, lambda) = (40, 8, 3, 1e-2);
     let p = random_problem(n, d, 31);
     let params = random_params(&p, m, 32);
-    let s = Settings { lambda, jitter: 1e-8, weighting: Weighting::Paper };
+    let s = Ridge { lambda, jitter: 1e-8, weighting: Weighting::Paper };
     let eval = objective(&p, &params, &s).unwrap();
 
     // K̃ = K_nm K_j⁻¹ K_nmᵀ (n × n), explicitly.
@@ -329,7 +329,7 @@ fn tuning_learns_the_relevant_dimension() {
     let (n, m) = (400, 40);
     let p = relevance_problem(n, 71);
     let init = init_params(&p, m, 72, LengthScaleInit::default());
-    let settings = Settings::new(1e-4, m);
+    let settings = Ridge::new(1e-4, m);
     let mut obj = Reference { problem: &p, settings };
     let first = obj.eval(&init).unwrap();
     let res = tune(&mut obj, init.clone(), &TuneSettings { patience: 0, ..Default::default() }, |_, _| true).unwrap();
@@ -360,7 +360,7 @@ fn tuning_keeps_the_lowest_training_error() {
     let (n, m) = (200, 20);
     let p = random_problem(n, 4, 81);
     let init = random_params(&p, m, 82);
-    let mut obj = Reference { problem: &p, settings: Settings::new(1e-3, m) };
+    let mut obj = Reference { problem: &p, settings: Ridge::new(1e-3, m) };
     // A large learning rate makes the iterates oscillate, so the best is not the last.
     let ts = TuneSettings { lr: 0.5, steps: 30, patience: 0, ..Default::default() };
     let mut seen = Vec::new();
@@ -387,7 +387,7 @@ fn tuning_switches_cancel_and_early_stop() {
     let (n, m) = (120, 12);
     let p = random_problem(n, 3, 91);
     let init = random_params(&p, m, 92);
-    let mut obj = Reference { problem: &p, settings: Settings::new(1e-3, m) };
+    let mut obj = Reference { problem: &p, settings: Ridge::new(1e-3, m) };
     let ts = TuneSettings { steps: 10, patience: 0, ..Default::default() };
 
     let r = tune(&mut obj, init.clone(), &TuneSettings { tune_theta: false, ..ts }, |_, _| true).unwrap();
@@ -427,7 +427,7 @@ impl Objective for Flaky<'_> {
 fn tuning_survives_a_failing_evaluation() {
     let p = random_problem(100, 3, 101);
     let init = random_params(&p, 10, 102);
-    let inner = Reference { problem: &p, settings: Settings::new(1e-3, 10) };
+    let inner = Reference { problem: &p, settings: Ridge::new(1e-3, 10) };
     let mut flaky = Flaky { inner, left: 3 };
     let r = tune(&mut flaky, init.clone(), &TuneSettings::default(), |_, _| true).unwrap();
     assert!(matches!(r.stop, StopReason::Failed(KrrError::NonFinite(_))));
@@ -474,7 +474,7 @@ fn bad_inputs_are_errors_not_panics() {
 
     let p = random_problem(30, 3, 121);
     let good = random_params(&p, 5, 122);
-    let s = Settings::new(1e-3, 5);
+    let s = Ridge::new(1e-3, 5);
     assert!(objective(&p, &good, &s).is_ok());
     let wrong_d = Params { log_s: vec![0.0; 4], ..good.clone() };
     assert!(matches!(objective(&p, &wrong_d, &s), Err(KrrError::Shape(_))));
@@ -488,7 +488,7 @@ fn bad_inputs_are_errors_not_panics() {
     let mut nan = good.clone();
     nan.log_s[1] = f64::NAN;
     assert!(matches!(objective(&p, &nan, &s), Err(KrrError::NonFinite(_))));
-    for bad in [Settings { lambda: 0.0, ..s }, Settings { lambda: f64::NAN, ..s }, Settings { jitter: -1.0, ..s }] {
+    for bad in [Ridge { lambda: 0.0, ..s }, Ridge { lambda: f64::NAN, ..s }, Ridge { jitter: -1.0, ..s }] {
         assert!(matches!(objective(&p, &good, &bad), Err(KrrError::Setting(_))));
     }
 
@@ -512,7 +512,7 @@ fn timing_objective_and_grad_n20000_m500_d32() {
     let (n, m, d) = (20000, 500, 32);
     let p = random_problem(n, d, 131);
     let params = init_params(&p, m, 132, LengthScaleInit::default());
-    let s = Settings::new(1e-4, m);
+    let s = Ridge::new(1e-4, m);
     let t0 = Instant::now();
     let e = objective(&p, &params, &s).unwrap();
     let t_obj = t0.elapsed();
@@ -563,7 +563,7 @@ fn length_scale_init_sweep() {
         let test = make(1000, 2);
         for init in inits {
             let params = init_params(&train, *m, 3, init);
-            let mut obj = Reference { problem: &train, settings: Settings::new(*lambda, *m) };
+            let mut obj = Reference { problem: &train, settings: Ridge::new(*lambda, *m) };
             let e0 = match obj.eval(&params) {
                 Ok(e) => e,
                 Err(e) => {
@@ -617,7 +617,7 @@ fn async_tuning_matches_blocking_tuning() {
     let (n, m) = (150, 10);
     let p = random_problem(n, 3, 31);
     let init = random_params(&p, m, 32);
-    let settings = Settings::new(1e-3, m);
+    let settings = Ridge::new(1e-3, m);
     let ts = TuneSettings { steps: 15, ..Default::default() };
     let blocking = tune(&mut Reference { problem: &p, settings }, init.clone(), &ts, |_, _| true).unwrap();
     let asynchronous = pollster::block_on(nkrr::krr::tune_async(

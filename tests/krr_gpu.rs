@@ -10,7 +10,7 @@ use nkrr::gpu::Gpu;
 use nkrr::krr::init::SplitMix64;
 use nkrr::krr::{
     init_params, kernel, linalg, objective, objective_and_grad, predict, tune, tune_async, Eval, GpuObjective,
-    GpuPredictor, Grad, KrrError, LengthScaleInit, Objective, Params, Problem, Reference, Settings, StopReason,
+    GpuPredictor, Grad, KrrError, LengthScaleInit, Objective, Params, Problem, Reference, Ridge, StopReason,
     TuneSettings, Weighting,
 };
 
@@ -148,7 +148,7 @@ fn run_case(gpu: &Gpu, label: &str, n: usize, m: usize, d: usize, lambda: f64, s
     let p = random_problem(n, d, seed);
     let params = random_params(&p, m, seed + 1);
     for weighting in [Weighting::Falkon, Weighting::Paper] {
-        let mut s = Settings::new(lambda, m);
+        let mut s = Ridge::new(lambda, m);
         s.weighting = weighting;
         let want = objective_and_grad(&p, &params, &s).unwrap();
         let mut obj = GpuObjective::new_blocking(gpu, &p, s).unwrap();
@@ -190,7 +190,7 @@ fn gram_is_accurate() {
     let (n, m, d) = (6000, 70, 32);
     let p = random_problem(n, d, 31);
     let params = random_params(&p, m, 32);
-    let mut obj = GpuObjective::new_blocking(&gpu, &p, Settings::new(1e-3, m)).unwrap();
+    let mut obj = GpuObjective::new_blocking(&gpu, &p, Ridge::new(1e-3, m)).unwrap();
     let (a_gpu, b_gpu) = pollster::block_on(obj.gram_async(&params)).unwrap();
     // The GPU uses 1/s rounded to f32: give the reference the same length-scales.
     let log_s32: Vec<f64> = params.log_s.iter().map(|l| -((-l).exp() as f32 as f64).ln()).collect();
@@ -222,7 +222,7 @@ fn gram_sums_are_exact_across_blocks() {
     let y: Vec<f32> = (0..n).map(|i| ((i % 7) as f32 - 3.0) * 0.25).collect();
     let p = Problem::from_f32(&x, &y, 1).unwrap();
     let params = Params { log_s: vec![0.0], z: vec![0.0, 0.0, 1000.0] };
-    let mut obj = GpuObjective::new_blocking(&gpu, &p, Settings::new(1e-3, 3)).unwrap();
+    let mut obj = GpuObjective::new_blocking(&gpu, &p, Ridge::new(1e-3, 3)).unwrap();
     let (a, b) = pollster::block_on(obj.gram_async(&params)).unwrap();
     assert_eq!(obj.blocks(), 2);
     let near = (0..n).filter(|i| i % 3 != 0).count() as f64;
@@ -242,7 +242,7 @@ fn matches_reference_large_n() {
     let (n, m, d) = (70001, 24, 4);
     let p = random_problem(n, d, 35);
     let params = random_params(&p, m, 36);
-    let s = Settings::new(1e-3, m);
+    let s = Ridge::new(1e-3, m);
     let want = objective_and_grad(&p, &params, &s).unwrap();
     let mut obj = GpuObjective::new_blocking(&gpu, &p, s).unwrap();
     let got = obj.eval_grad(&params).unwrap();
@@ -260,7 +260,7 @@ fn multi_block_equals_single_block() {
     let (n, m, d) = (3001, 60, 12);
     let p = random_problem(n, d, 41);
     let params = random_params(&p, m, 42);
-    let s = Settings::new(1e-3, m);
+    let s = Ridge::new(1e-3, m);
     let mut one = GpuObjective::new_blocking(&gpu, &p, s).unwrap();
     let a = one.eval_grad(&params).unwrap();
     assert_eq!(one.blocks(), 1);
@@ -293,7 +293,7 @@ fn predict_case(gpu: &Gpu, n: usize, m: usize) {
     let d = 32;
     let p = random_problem(n, d, 51);
     let params = random_params(&p, m, 52);
-    let eval = objective(&p, &params, &Settings::new(1e-3, m)).unwrap();
+    let eval = objective(&p, &params, &Ridge::new(1e-3, m)).unwrap();
     let q = random_problem(5003, d, 53);
     let q32: Vec<f32> = q.x().iter().map(|&v| v as f32).collect();
     let want = predict(&eval.beta, &params.z, &params.log_s, q.x()).unwrap();
@@ -329,7 +329,7 @@ fn tuning_with_the_gpu_objective_learns_the_relevant_dimension() {
     let (n, m) = (400, 40);
     let p = relevance_problem(n, 71);
     let init = init_params(&p, m, 72, LengthScaleInit::default());
-    let settings = Settings::new(1e-4, m);
+    let settings = Ridge::new(1e-4, m);
     let mut obj = GpuObjective::new_blocking(&gpu, &p, settings).unwrap();
     let first = obj.eval(&init).unwrap();
     let res = tune(&mut obj, init.clone(), &TuneSettings { patience: 0, ..Default::default() }, |_, _| true).unwrap();
@@ -378,7 +378,7 @@ fn tune_async_with_the_gpu_objective_takes_the_same_steps() {
     let (n, m) = (300, 20);
     let p = relevance_problem(n, 75);
     let init = init_params(&p, m, 76, LengthScaleInit::default());
-    let settings = Settings::new(1e-4, m);
+    let settings = Ridge::new(1e-4, m);
     let ts = TuneSettings { steps: 8, patience: 0, ..Default::default() };
     let mut obj = GpuObjective::new_blocking(&gpu, &p, settings).unwrap();
     let blocking = tune(&mut obj, init.clone(), &ts, |_, _| true).unwrap();
@@ -399,7 +399,7 @@ fn bad_inputs_are_errors() {
     let gpu = gpu();
     let p = random_problem(100, 3, 61);
     let params = random_params(&p, 10, 62);
-    let s = Settings::new(1e-3, 10);
+    let s = Ridge::new(1e-3, 10);
     let mut obj = GpuObjective::new_blocking(&gpu, &p, s).unwrap();
     let mut bad = params.clone();
     bad.log_s.pop();
@@ -410,7 +410,7 @@ fn bad_inputs_are_errors() {
     let mut bad = params.clone();
     bad.z[3] = 1e300; // finite in f64, not in f32
     assert!(matches!(obj.eval_grad(&bad), Err(KrrError::NonFinite(_))));
-    assert!(GpuObjective::new_blocking(&gpu, &p, Settings { lambda: 0.0, ..s }).is_err());
+    assert!(GpuObjective::new_blocking(&gpu, &p, Ridge { lambda: 0.0, ..s }).is_err());
     let wide = random_problem(10, 65, 63);
     assert!(GpuObjective::new_blocking(&gpu, &wide, s).is_err());
     assert!(GpuPredictor::new_blocking(&gpu, 0).is_err());
@@ -428,7 +428,7 @@ fn timings_n20000_m500_d32() {
     let (n, m, d) = (20000, 500, 32);
     let p = random_problem(n, d, 91);
     let params = random_params(&p, m, 92);
-    let mut obj = GpuObjective::new_blocking(&gpu, &p, Settings::new(1e-3, m)).unwrap();
+    let mut obj = GpuObjective::new_blocking(&gpu, &p, Ridge::new(1e-3, m)).unwrap();
     // One evaluation (the first also allocates the device buffers).
     let (e, _) = obj.eval_grad(&params).unwrap();
     println!("adapter: {}", gpu.describe());
@@ -447,7 +447,7 @@ fn timings_cpu_algebra_m500_m1000() {
     let p = random_problem(n, d, 91);
     for m in [500, 1000] {
         let params = random_params(&p, m, 92);
-        let mut obj = GpuObjective::new_blocking(&gpu, &p, Settings::new(1e-3, m)).unwrap();
+        let mut obj = GpuObjective::new_blocking(&gpu, &p, Ridge::new(1e-3, m)).unwrap();
         let mut best: Option<nkrr::krr::PhaseTimings> = None;
         for _ in 0..3 {
             obj.eval_grad(&params).unwrap();
@@ -461,7 +461,7 @@ fn timings_cpu_algebra_m500_m1000() {
 }
 
 /// The reference's forward pass (data_fit, ‖g‖², T1, T2, β) from a given K_nm, all f64.
-fn forward_sim(knm: &[f64], p: &Problem, params: &Params, s: &Settings) -> (f64, f64, f64, f64, Vec<f64>) {
+fn forward_sim(knm: &[f64], p: &Problem, params: &Params, s: &Ridge) -> (f64, f64, f64, f64, Vec<f64>) {
     let (n, d) = (p.n(), p.d());
     let m = params.z.len() / d;
     let nl = n as f64 * s.lambda;
@@ -504,7 +504,7 @@ fn precision_survey() {
         for v in params.log_s.iter_mut() {
             *v += widen.ln();
         }
-        let s = Settings::new(lambda, m);
+        let s = Ridge::new(lambda, m);
         let want = match objective_and_grad(&p, &params, &s) {
             Ok(w) => w,
             Err(e) => {

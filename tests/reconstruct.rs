@@ -11,7 +11,8 @@ use std::process::Command;
 use gltf::json::Value;
 use nkrr::io::gltf::{write_glb, GlbOptions};
 use nkrr::mesh::Mesh;
-use nkrr::pipeline::{Engine, Method, Reconstruction, Settings};
+use nkrr::pipeline::{Engine, Reconstruction};
+use nkrr::settings::{Method, Settings};
 use nkrr::sample::{mean_spacing, PointIndex};
 use nkrr::PointCloud;
 

@@ -2,6 +2,8 @@
 
 use std::process::ExitCode;
 
+use nkrr::settings::{Method, Settings};
+
 const USAGE: &str = "\
 nkrr — surface reconstruction from raw point clouds
 
@@ -15,26 +17,7 @@ USAGE:
                             memory each stage needs on this machine's GPU (for the options)
     nkrr reconstruct CLOUD -o OUT.glb|.ply|.obj|.stl [OPTIONS]
                             a watertight mesh of the cloud; the extension picks the format
-        --units mm|cm|m|in|ft      the cloud's length unit: the mesh is scaled to metres
-                                   (glTF's unit); without it coordinates are kept as they are
-        --method nkrr|network      field to mesh (network: the prior alone)  [nkrr]
-        --resolution N             marching-cubes resolution (16..=1024)     [128]
-        --remove-small F           drop components below F x the largest's triangle count
-        --trim [F]                 open the surface where there are no points: drop triangles
-                                   farther than F x the mean point spacing from them  [3]
-        --no-colors                leave the mesh uncoloured (default: vertex colours from a
-                                   coloured cloud, written as COLOR_0)
-        --max-points N             subsample larger clouds for the encoder   [100000]
-        --m N                      inducing points of the KRR                [500]
-        --steps N                  Adam steps of the test-time tuning        [100]
-        --lambda X                 ridge parameter of the KRR                [1e-5]
-        --label-clip C             clip the network logits used as targets to [-C, C]  [4]
-        --no-label-clip            regress the raw logits (the paper's targets)
-        --no-tune | --no-theta | --no-z   the paper's ablations
-        --euclidean                KRR on Fourier-encoded coordinates, not features (ablation)
-        --krr-backend auto|gpu|cpu where the KRR objective runs (auto: CPU f64 on software
-                                   adapters, GPU otherwise)                  [auto]
-    nkrr metrics GT.obj RECON.glb|RECON.obj [RECON ...] [--seed N]
+{OPTIONS}    nkrr metrics GT.obj RECON.glb|RECON.obj [RECON ...] [--seed N]
                             one JSON line per reconstruction: cd1x100, fscore, nc, iou
                             (null unless GT is watertight), watertight (the reconstruction's),
                             by the protocol of the eval data (see nkrr::eval); --seed picks
@@ -46,11 +29,16 @@ USAGE:
         methods: network, nkrr, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean,
                  nkrr-m<N> (e.g. nkrr-m1000)
         --keep-meshes              also write PREFIX-NAME-SIZE-METHOD.glb
-    nkrr bench [--sizes 3000,10000,50000] [--ms 500,1000] [--steps N] [--method nkrr|network]
+    nkrr bench [--sizes 3000,10000,50000] [--ms 500,1000] [reconstruct options]
                             per-stage times on a synthetic noisy torus (adapter printed)
     nkrr gpu                the GPU adapter wgpu finds here and its limits
     nkrr --help | --version
 ";
+
+/// The usage text, with the reconstruction options from the settings table.
+fn usage_text() -> String {
+    USAGE.replace("{OPTIONS}", &nkrr::settings::usage())
+}
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -62,7 +50,7 @@ fn main() -> ExitCode {
         Some("eval") => eval(&args[1..]),
         Some("gpu") => gpu(),
         Some("-h" | "--help" | "help") => {
-            print!("{USAGE}");
+            print!("{}", usage_text());
             Ok(())
         }
         Some("-V" | "--version") => {
@@ -87,7 +75,7 @@ struct Failure {
 }
 
 fn usage(what: &str) -> Failure {
-    Failure { message: format!("{what}\n\n{USAGE}"), code: 2 }
+    Failure { message: format!("{what}\n\n{}", usage_text()), code: 2 }
 }
 
 fn fail(message: String) -> Failure {
@@ -101,12 +89,11 @@ fn read_scan(path: &str) -> Result<(Vec<u8>, nkrr::io::ScanFile), Failure> {
 }
 
 fn info(args: &[String]) -> Result<(), Failure> {
-    let mut settings = nkrr::pipeline::Settings::default();
+    let mut settings = Settings::default();
     let mut path = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
-            "--method" => settings.method = value(&mut it, a)?.parse().map_err(|e: String| usage(&e))?,
             s if reconstruct_option(s, &mut it, &mut settings)? => {}
             s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
             s if path.is_none() => path = Some(s.to_string()),
@@ -169,7 +156,7 @@ fn info(args: &[String]) -> Result<(), Failure> {
 
 /// The memory each stage will need on this machine's adapter, and what happens where it does
 /// not fit.
-fn preflight(cloud: &nkrr::cloud::PointCloud, settings: &nkrr::pipeline::Settings) {
+fn preflight(cloud: &nkrr::cloud::PointCloud, settings: &Settings) {
     let (limits, adapter) = match nkrr::gpu::Gpu::new_blocking() {
         Ok(gpu) => (nkrr::plan::DeviceFacts::of(&gpu), gpu.info.name.clone()),
         Err(e) => (nkrr::plan::DeviceFacts::webgpu_default(), format!("none ({e}); WebGPU's default limits assumed")),
@@ -192,7 +179,7 @@ fn gpu() -> Result<(), Failure> {
 }
 
 fn reconstruct(args: &[String]) -> Result<(), Failure> {
-    use nkrr::pipeline::{Engine, Settings, Stage};
+    use nkrr::pipeline::{Engine, Stage};
     let mut settings = Settings::default();
     let mut input = None;
     let mut output = None;
@@ -200,7 +187,6 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     while let Some(a) = it.next() {
         match a.as_str() {
             "-o" | "--output" => output = Some(value(&mut it, a)?),
-            "--method" => settings.method = value(&mut it, a)?.parse().map_err(|e: String| usage(&e))?,
             s if reconstruct_option(s, &mut it, &mut settings)? => {}
             s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
             s if input.is_none() => input = Some(s.to_string()),
@@ -283,66 +269,20 @@ fn value(it: &mut std::slice::Iter<String>, name: &str) -> Result<String, Failur
     it.next().cloned().ok_or_else(|| usage(&format!("{name} needs a value")))
 }
 
-/// The reconstruction options `reconstruct` and `eval` share (all but `-o` and `--method`):
-/// applies `a` (taking its value from `it`) and returns true, or false when `a` is not one.
-fn reconstruct_option(a: &str, it: &mut std::slice::Iter<String>, settings: &mut nkrr::pipeline::Settings) -> Result<bool, Failure> {
-    match a {
-        "--resolution" => {
-            let r: u32 = parse(&value(it, a)?, a)?;
-            if !(16..=1024).contains(&r) {
-                return Err(usage("--resolution must be between 16 and 1024"));
+/// A reconstruction option (any setting of [`nkrr::settings::TABLE`]): applies `a`, taking
+/// its value from `it` when it has one, and returns true, or false when `a` is not one.
+fn reconstruct_option(a: &str, it: &mut std::slice::Iter<String>, settings: &mut Settings) -> Result<bool, Failure> {
+    let rest: Vec<String> = it.as_slice().iter().take(1).cloned().collect();
+    match nkrr::settings::apply_flag(settings, a, &rest) {
+        None => Ok(false),
+        Some(Err(e)) => Err(usage(&e)),
+        Some(Ok(used)) => {
+            for _ in 0..used {
+                it.next();
             }
-            settings.resolution = r;
+            Ok(true)
         }
-        "--remove-small" => {
-            let f: f32 = parse(&value(it, a)?, a)?;
-            if !(0.0..=1.0).contains(&f) {
-                return Err(usage("--remove-small must be between 0 and 1"));
-            }
-            settings.remove_small_components = Some(f);
-        }
-        "--max-points" => settings.max_points = parse::<usize>(&value(it, a)?, a)?.max(1),
-        "--m" => settings.m = parse::<usize>(&value(it, a)?, a)?.max(1),
-        "--steps" => settings.steps = parse(&value(it, a)?, a)?,
-        "--no-label-clip" => settings.label_clip = None,
-        "--label-clip" => {
-            let c: f32 = parse(&value(it, a)?, a)?;
-            if !(c > 0.0) {
-                return Err(usage("--label-clip must be > 0"));
-            }
-            settings.label_clip = Some(c);
-        }
-        "--lambda" => {
-            let l: f64 = parse(&value(it, a)?, a)?;
-            if !(l > 0.0 && l.is_finite()) {
-                return Err(usage("--lambda must be > 0"));
-            }
-            settings.lambda = l;
-        }
-        "--no-tune" => settings.steps = 0,
-        "--no-theta" => settings.tune_theta = false,
-        "--no-z" => settings.tune_z = false,
-        "--euclidean" => settings.euclidean = true,
-        "--krr-backend" => settings.krr_backend = value(it, a)?.parse().map_err(|e: String| usage(&e))?,
-        "--no-colors" => settings.colors = false,
-        "--units" => settings.units = Some(value(it, a)?.parse().map_err(|e: String| usage(&e))?),
-        "--trim" => {
-            // The factor is optional: take the next argument only when it is a number.
-            let f = match it.as_slice().first().and_then(|s| s.parse::<f32>().ok()) {
-                Some(f) => {
-                    it.next();
-                    f
-                }
-                None => nkrr::mesh::trim::DEFAULT_TRIM,
-            };
-            if !(f > 0.0 && f.is_finite()) {
-                return Err(usage("--trim must be > 0"));
-            }
-            settings.trim = Some(f);
-        }
-        _ => return Ok(false),
     }
-    Ok(true)
 }
 
 fn parse<T: std::str::FromStr>(s: &str, name: &str) -> Result<T, Failure> {
@@ -374,20 +314,16 @@ fn list(s: &str, name: &str) -> Result<Vec<usize>, Failure> {
 }
 
 fn bench(args: &[String]) -> Result<(), Failure> {
-    use nkrr::pipeline::{Engine, Method, Settings};
+    use nkrr::pipeline::Engine;
     let mut sizes = vec![3000, 10000, 50000];
     let mut ms = vec![500, 1000];
     let mut settings = Settings { method: Method::Nkrr, steps: 10, ..Settings::default() };
     let mut it = args.iter();
     while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().cloned().ok_or_else(|| usage(&format!("{name} needs a value")));
         match a.as_str() {
-            "--sizes" => sizes = list(&value(a)?, a)?,
-            "--ms" => ms = list(&value(a)?, a)?,
-            "--steps" => settings.steps = parse(&value(a)?, a)?,
-            "--method" => settings.method = value(a)?.parse().map_err(|e: String| usage(&e))?,
-            "--resolution" => settings.resolution = parse(&value(a)?, a)?,
-            "--krr-backend" => settings.krr_backend = value(a)?.parse().map_err(|e: String| usage(&e))?,
+            "--sizes" => sizes = list(&value(&mut it, a)?, a)?,
+            "--ms" => ms = list(&value(&mut it, a)?, a)?,
+            s if reconstruct_option(s, &mut it, &mut settings)? => {}
             s => return Err(usage(&format!("unknown bench option '{s}'"))),
         }
     }
@@ -524,7 +460,7 @@ struct EvalRun {
 }
 
 fn eval(args: &[String]) -> Result<(), Failure> {
-    use nkrr::pipeline::{Engine, Settings};
+    use nkrr::pipeline::Engine;
     let mut dir = None;
     let mut sizes: Vec<String> = vec!["3k".into(), "10k".into()];
     let mut methods: Vec<String> = vec!["network".into(), "nkrr".into()];
@@ -644,9 +580,9 @@ fn write_eval_reports(
     out: &str,
     dir: &str,
     adapter: &str,
-    base: &nkrr::pipeline::Settings,
+    base: &Settings,
     sizes: &[String],
-    variants: &[(String, nkrr::pipeline::Settings)],
+    variants: &[(String, Settings)],
     runs: &[EvalRun],
 ) -> Result<(), Failure> {
     const STAGES: [&str; 6] = ["features", "pairs", "tuning", "mesh", "total", "metrics"];

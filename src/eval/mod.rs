@@ -1,5 +1,5 @@
 //! Surface metrics of a reconstruction against its ground-truth mesh, by the evaluation protocol
-//! of `../shared/data/eval/README.md` (the paper's, after ConvONet and POCO).
+//! of `tests/data/eval/README.md` (the paper's, after ConvONet and POCO).
 //!
 //! 1. **Normalisation.** The ground truth's bounding box (of the vertices its triangles use) is
 //!    mapped to the unit cube: centre at the origin, longest side 1. The reconstruction gets the
@@ -50,7 +50,7 @@ mod kdtree;
 use std::fmt;
 
 use crate::mesh::Mesh;
-use crate::pipeline::{Method, Settings};
+use crate::settings::{Method, Settings};
 use crate::rng::SplitMix64;
 use inside::InsideTest;
 use kdtree::KdTree;

@@ -1,4 +1,4 @@
-//! Reading Wavefront OBJ meshes (the evaluation's ground truths, `../shared/data/eval/*.obj`).
+//! Reading Wavefront OBJ meshes (the evaluation's ground truths, `tests/data/eval/*.obj`).
 //!
 //! Only geometry is kept: `v x y z [w | r g b]` gives a position (a fourth `w` or trailing
 //! colour values are ignored), `f` a polygon, which is fan-triangulated (`a b c d` →

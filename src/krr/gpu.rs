@@ -67,8 +67,9 @@
 
 use super::kernel;
 use super::linalg::{self, dot};
-use super::reference::{kmm_side, mm_forward, mm_grad, Eval, Grad, MmForward, MmGrad, MmParts, Params, Problem, Settings};
-use super::KrrError;
+use super::error::KrrError;
+use super::mm::{kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmParts};
+use super::problem::{Eval, Grad, Objective, Params, Problem, Ridge};
 use crate::gpu::{Gpu, GpuError};
 
 const KERNEL_WGSL: &str = include_str!("../../shaders/krr_kernel_block.wgsl");
@@ -290,7 +291,7 @@ fn check_d(d: usize) -> Result<(), KrrError> {
     Ok(())
 }
 
-fn check_settings(s: &Settings) -> Result<(), KrrError> {
+fn check_settings(s: &Ridge) -> Result<(), KrrError> {
     if s.lambda <= 0.0 || !s.lambda.is_finite() {
         return Err(KrrError::Setting(format!("lambda must be finite and > 0, got {}", s.lambda)));
     }
@@ -604,7 +605,7 @@ pub struct GpuObjective {
     y_scale: f64,
     /// `‖y~‖²` of the fixed-point y, in f64.
     yy: f64,
-    settings: Settings,
+    settings: Ridge,
     pipes: Pipes,
     predictor: GpuPredictor,
     block_rows: usize,
@@ -619,7 +620,7 @@ pub struct GpuObjective {
 
 impl GpuObjective {
     /// Uploads `problem` (as f32) and builds the kernels for its feature dimension (≤ [`MAX_D`]).
-    pub async fn new(gpu: &Gpu, problem: &Problem, settings: Settings) -> Result<GpuObjective, KrrGpuError> {
+    pub async fn new(gpu: &Gpu, problem: &Problem, settings: Ridge) -> Result<GpuObjective, KrrGpuError> {
         check_settings(&settings)?;
         let (n, d) = (problem.n(), problem.d());
         check_d(d)?;
@@ -678,11 +679,11 @@ impl GpuObjective {
 
     /// [`GpuObjective::new`], blocking (native only).
     #[cfg(not(target_arch = "wasm32"))]
-    pub fn new_blocking(gpu: &Gpu, problem: &Problem, settings: Settings) -> Result<GpuObjective, KrrGpuError> {
+    pub fn new_blocking(gpu: &Gpu, problem: &Problem, settings: Ridge) -> Result<GpuObjective, KrrGpuError> {
         pollster::block_on(Self::new(gpu, problem, settings))
     }
 
-    pub fn settings(&self) -> &Settings {
+    pub fn settings(&self) -> &Ridge {
         &self.settings
     }
 
@@ -1019,7 +1020,7 @@ impl GpuObjective {
 }
 
 #[cfg(not(target_arch = "wasm32"))]
-impl super::tune::Objective for GpuObjective {
+impl Objective for GpuObjective {
     fn eval_grad(&mut self, params: &Params) -> Result<(Eval, Grad), KrrError> {
         pollster::block_on(self.eval_grad_async(params)).map_err(Into::into)
     }

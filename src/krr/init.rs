@@ -7,7 +7,7 @@
 //! kernel value ≈ e^{−1/f²} whatever d is — [`LengthScaleInit::ScaledStd`], the per-dimension
 //! form of the median heuristic. `tests/krr.rs` (`length_scale_init_sweep`) measures the choice.
 
-use super::reference::{Params, Problem};
+use super::problem::{Params, Problem};
 
 /// How to initialise the length-scales.
 #[derive(Clone, Copy, Debug, PartialEq)]

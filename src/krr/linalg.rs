@@ -19,7 +19,7 @@
 //! uses 4-wide fused multiply-adds; elsewhere the compiler vectorises plain Rust (separate
 //! multiply and add) as the target allows. The two differ in the last bits, never in accuracy.
 
-use super::KrrError;
+use super::error::KrrError;
 
 // ---------------------------------------------------------------------------------------------
 // threads

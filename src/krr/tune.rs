@@ -8,24 +8,11 @@
 //! loss alone can plateau while the error we keep the best of still falls), switches to freeze θ (the
 //! length-scales) or Z, and a progress callback that can cancel.
 //!
-//! The loop is generic over [`Objective`], so the f64 [`Reference`](super::Reference) and a GPU
+//! The loop is generic over [`Objective`], so the f64 [`Reference`](super::reference::Reference) and a GPU
 //! implementation are driven by the same code.
 
-use super::reference::{Eval, Grad, Params};
-use super::KrrError;
-
-/// Something that evaluates the tuning objective and its gradient at given parameters.
-pub trait Objective {
-    /// Loss, diagnostics and β at `params`, and the gradient of the loss (same shapes as
-    /// `params`).
-    fn eval_grad(&mut self, params: &Params) -> Result<(Eval, Grad), KrrError>;
-
-    /// The evaluation alone; override when it is cheaper than [`Objective::eval_grad`] (the
-    /// tuner calls it for the final iterate, whose gradient is not needed).
-    fn eval(&mut self, params: &Params) -> Result<Eval, KrrError> {
-        self.eval_grad(params).map(|(e, _)| e)
-    }
-}
+use super::error::KrrError;
+use super::problem::{Eval, Grad, Objective, Params};
 
 /// Settings of the tuning loop.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -14,7 +14,8 @@ use wasm_bindgen::prelude::*;
 use crate::gpu::Gpu;
 use crate::io::mesh_out::{self, MeshFormat};
 use crate::io::gltf;
-use crate::pipeline::{now, Engine, Method, PipelineError, Settings, Stage};
+use crate::pipeline::{now, Engine, PipelineError, Reconstruction, Stage};
+use crate::settings::{self, Kind, Settings, Value};
 
 thread_local! {
     static ENGINE: RefCell<Option<Rc<Engine>>> = const { RefCell::new(None) };
@@ -132,15 +133,11 @@ pub fn trim_indices(points: &[f32], positions: &[f32], indices: &[u32], factor: 
     }
 }
 
-/// Reconstructs a surface from PLY bytes.
+/// Reconstructs a surface from a cloud file's bytes (any format of [`crate::io::read_cloud`]).
 ///
-/// `options` is a plain object, every field optional (defaults: the paper's m and steps; λ and
-/// labelClip as chosen on the eval clouds, docs/krr.md):
-/// `method` ("network" | "nkrr"), `m`, `steps`, `resolution`, `removeSmall` (fraction of the
-/// largest component below which components are dropped; 0 or null keeps all), `maxPoints`,
-/// `lambda`, `labelClip` (clip the network's logits used as targets to ±labelClip; 0 turns it
-/// off, as in the paper), `krrBackend` ("auto" | "gpu" | "cpu": where the tuning objective runs;
-/// auto = the GPU unless the adapter is a CPU), `name` (the glTF node's name).
+/// `options` is a plain object, every field optional: any key of [`settings_table`] (the same
+/// settings, defaults and ranges as the CLI's flags; a value out of range rejects with a
+/// `RangeError` that names the key and its range), and `name` (the glTF node's name).
 ///
 /// `on_progress(p)` is called at each stage with `{ stage: "features" | "pairs" | "tuning" |
 /// "meshing" | "done", step?, of?, loss?, evaluated? }`; returning `false` cancels, and the
@@ -149,11 +146,11 @@ pub fn trim_indices(points: &[f32], positions: &[f32], indices: &[u32], factor: 
 /// Resolves to `{ glb: Uint8Array, positions: Float32Array, normals: Float32Array,
 /// indices: Uint32Array, stats }` (see `stats_object` for the fields of `stats`).
 #[wasm_bindgen]
-pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Function) -> Result<JsValue, JsValue> {
+pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function) -> Result<JsValue, JsValue> {
     let t0 = now();
     let opts = Options::from_js(&options)?;
-    let parsed = crate::io::read_cloud(&ply_bytes, None).map_err(|e| error("PlyError", &e.to_string()))?;
-    drop(ply_bytes);
+    let parsed = crate::io::read_cloud(&bytes, None).map_err(|e| error("CloudError", &e.to_string()))?;
+    drop(bytes);
     let _ = take_trouble();
     let engine = engine().await?;
     let t_ready = now();
@@ -184,81 +181,24 @@ pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Func
     if let Some(trouble) = take_trouble() {
         return Err(error("GpuError", &trouble));
     }
-    let rec = result.map_err(pipeline_error)?;
+    let mut rec = result.map_err(pipeline_error)?;
 
     let t = now();
     let translation = rec.translation();
-    let mut mesh = rec.mesh;
+    let mut mesh = std::mem::take(&mut rec.mesh);
     if mesh.normals.len() != mesh.positions.len() {
         mesh.compute_vertex_normals();
     }
-    let watertight = mesh.is_watertight();
     let (glb, report) = gltf::write_glb_with_report(&mesh, &gltf::GlbOptions { name: opts.name.clone(), translation })
         .map_err(|e| error("GltfError", &format!("the mesh could not be written as glTF: {e}")))?;
-    let t_glb = now() - t;
+    let mut timings: Vec<(&str, f64)> = vec![("setup", t_ready - t0)];
+    timings.extend(rec.timings.iter().copied());
+    timings.push(("glb", now() - t));
 
-    let stats = Object::new();
-    set(&stats, "points", parsed.cloud.len() as f64);
-    set(&stats, "method", if opts.settings.method == Method::Nkrr { "nkrr" } else { "network" });
-    set(&stats, "resolution", opts.settings.resolution as f64);
-    set(&stats, "vertices", report.vertices_written as f64);
-    set(&stats, "triangles", report.triangles_written as f64);
-    set(&stats, "watertight", watertight);
-    set(&stats, "bytes", report.bytes as f64);
-    set(&stats, "evaluations", rec.extract.refine.evaluations as f64);
-    set(&stats, "denseEvaluations", rec.extract.refine.dense_evaluations as f64);
-    set(&stats, "components", rec.extract.removal.components as f64);
-    set(&stats, "componentsRemoved", rec.extract.removal.components_removed as f64);
-    let timings = Array::new();
-    let mut stage_timings: Vec<(&str, f64)> = vec![("setup", t_ready - t0)];
-    stage_timings.extend(rec.timings.iter().copied());
-    stage_timings.push(("glb", t_glb));
-    for (stage, seconds) in stage_timings {
-        let o = Object::new();
-        set(&o, "stage", stage);
-        set(&o, "seconds", seconds);
-        timings.push(&o);
-    }
-    set(&stats, "timings", timings);
+    let stats = stats_object(&parsed, &opts.settings, &rec, &mesh, &report, &timings);
     set(&stats, "seconds", now() - t0);
-    let notices: Array = rec.notices.iter().map(|n| JsValue::from_str(n)).collect();
-    for w in parsed.warnings() {
-        notices.push(&JsValue::from_str(&w));
-    }
-    if opts.settings.units.is_none() {
-        let g = parsed.units_guess();
-        if g.warn {
-            notices.push(&JsValue::from_str(&format!(
-                "no units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): choose mm if they are millimetres",
-                g.reason
-            )));
-        }
-    }
-    if report.degenerate_triangles_dropped > 0 {
-        notices.push(&JsValue::from_str(&format!(
-            "{} degenerate triangles were left out of the GLB",
-            report.degenerate_triangles_dropped
-        )));
-    }
-    set(&stats, "notices", notices);
-    let tuning: JsValue = match &rec.tuning {
-        None => JsValue::NULL,
-        Some(t) => {
-            let o = Object::new();
-            set(&o, "backend", t.backend);
-            set(&o, "n", t.n as f64);
-            set(&o, "m", t.m as f64);
-            set(&o, "stepsRun", t.steps_run as f64);
-            set(&o, "bestStep", t.best_step as f64);
-            set(&o, "stop", t.stop.as_str());
-            set(&o, "initialLoss", t.initial_loss);
-            set(&o, "finalLoss", t.final_loss);
-            set(&o, "initialDataFit", t.initial_data_fit);
-            set(&o, "bestDataFit", t.best_data_fit);
-            o.into()
-        }
-    };
-    set(&stats, "tuning", tuning);
+    set(&stats, "notices", notices(&parsed, &opts.settings, &rec, &report));
+    set(&stats, "tuning", rec.tuning.as_ref().map_or(JsValue::NULL, |t| tuning_object(t).into()));
     set(&stats, "adapter", engine.gpu.describe());
 
     let out = Object::new();
@@ -274,6 +214,75 @@ pub async fn reconstruct(ply_bytes: Vec<u8>, options: JsValue, on_progress: Func
     Ok(out.into())
 }
 
+/// The result's `stats`: what was read, the settings that matter, the mesh and the time per
+/// stage.
+fn stats_object(
+    parsed: &crate::io::ScanFile,
+    settings: &Settings,
+    rec: &Reconstruction,
+    mesh: &crate::mesh::Mesh,
+    report: &gltf::GlbReport,
+    timings: &[(&str, f64)],
+) -> Object {
+    let stats = Object::new();
+    set(&stats, "points", parsed.cloud.len() as f64);
+    set(&stats, "method", settings::value_text(settings::by_key("method").expect("in the table").get(settings)));
+    set(&stats, "resolution", settings.resolution as f64);
+    set(&stats, "vertices", report.vertices_written as f64);
+    set(&stats, "triangles", report.triangles_written as f64);
+    set(&stats, "watertight", mesh.is_watertight());
+    set(&stats, "bytes", report.bytes as f64);
+    set(&stats, "evaluations", rec.extract.refine.evaluations as f64);
+    set(&stats, "denseEvaluations", rec.extract.refine.dense_evaluations as f64);
+    set(&stats, "components", rec.extract.removal.components as f64);
+    set(&stats, "componentsRemoved", rec.extract.removal.components_removed as f64);
+    let list = Array::new();
+    for (stage, seconds) in timings {
+        let o = Object::new();
+        set(&o, "stage", *stage);
+        set(&o, "seconds", *seconds);
+        list.push(&o);
+    }
+    set(&stats, "timings", list);
+    stats
+}
+
+/// Everything the user should know about the run, one sentence each: the pipeline's notices,
+/// the reader's warnings, a units warning, what the GLB left out.
+fn notices(parsed: &crate::io::ScanFile, settings: &Settings, rec: &Reconstruction, report: &gltf::GlbReport) -> Array {
+    let mut lines: Vec<String> = rec.notices.clone();
+    lines.extend(parsed.warnings());
+    if settings.units.is_none() {
+        let g = parsed.units_guess();
+        if g.warn {
+            lines.push(format!(
+                "no units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): choose mm if they are millimetres",
+                g.reason
+            ));
+        }
+    }
+    if report.degenerate_triangles_dropped > 0 {
+        lines.push(format!("{} degenerate triangles were left out of the GLB", report.degenerate_triangles_dropped));
+    }
+    lines.iter().map(|n| JsValue::from_str(n)).collect()
+}
+
+/// The tuning's summary for the page.
+fn tuning_object(t: &crate::field::TuningSummary) -> Object {
+    let o = Object::new();
+    set(&o, "backend", t.backend);
+    set(&o, "n", t.n as f64);
+    set(&o, "m", t.m as f64);
+    set(&o, "stepsRun", t.steps_run as f64);
+    set(&o, "bestStep", t.best_step as f64);
+    set(&o, "stop", t.stop.as_str());
+    set(&o, "initialLoss", t.initial_loss);
+    set(&o, "finalLoss", t.final_loss);
+    set(&o, "initialDataFit", t.initial_data_fit);
+    set(&o, "bestDataFit", t.best_data_fit);
+    o
+}
+
 /// The settings a page may give, checked.
 struct Options {
     settings: Settings,
@@ -281,6 +290,9 @@ struct Options {
 }
 
 impl Options {
+    /// Reads every key of the settings table from `o` (numbers may come as numeric strings,
+    /// as form fields give them; a setting that can be off is off at 0, "" or null), plus
+    /// `name`, the glTF node's name.
     fn from_js(o: &JsValue) -> Result<Options, JsValue> {
         let mut settings = Settings::default();
         let mut name = None;
@@ -290,43 +302,23 @@ impl Options {
         if !o.is_object() {
             return Err(error("TypeError", "options must be an object"));
         }
-        if let Some(v) = field(o, "method")? {
-            let s = v.as_string().ok_or_else(|| error("RangeError", "method must be \"network\" or \"nkrr\""))?;
-            settings.method = s.parse().map_err(|e: String| error("RangeError", &e))?;
-        }
-        if let Some(m) = integer(o, "m", 1.0, 5000.0)? {
-            settings.m = m as usize;
-        }
-        if let Some(s) = integer(o, "steps", 0.0, 1000.0)? {
-            settings.steps = s as usize;
-        }
-        if let Some(r) = integer(o, "resolution", 16.0, crate::mesh::refine::MAX_RESOLUTION as f64)? {
-            settings.resolution = r as u32;
-        }
-        if let Some(p) = integer(o, "maxPoints", 1.0, 10_000_000.0)? {
-            settings.max_points = p as usize;
-        }
-        if let Some(f) = number(o, "removeSmall", 0.0, 1.0)? {
-            settings.remove_small_components = (f > 0.0).then_some(f as f32);
-        }
-        if let Some(f) = number(o, "trim", 0.0, 1e3)? {
-            settings.trim = (f > 0.0).then_some(f as f32);
-        }
-        if let Some(l) = number(o, "lambda", f64::MIN_POSITIVE, 1e6)? {
-            settings.lambda = l;
-        }
-        if let Some(v) = field(o, "krrBackend")? {
-            let b = v.as_string().ok_or_else(|| error("TypeError", "krrBackend must be a string"))?;
-            settings.krr_backend = b.parse().map_err(|e: String| error("RangeError", &e))?;
-        }
-        if let Some(c) = number(o, "labelClip", 0.0, 1e6)? {
-            settings.label_clip = (c > 0.0).then_some(c as f32);
-        }
-        if let Some(v) = field(o, "units")? {
-            if !v.is_null() && v.as_string().as_deref() != Some("") {
-                let s = v.as_string().ok_or_else(|| error("TypeError", "units must be a string"))?;
-                settings.units = Some(s.parse().map_err(|e: String| error("RangeError", &e))?);
+        for def in settings::TABLE {
+            let raw = Reflect::get(o, &JsValue::from_str(def.key))?;
+            if raw.is_undefined() {
+                continue;
             }
+            let value = if raw.is_null() {
+                Ok(Value::Off)
+            } else if let Some(b) = raw.as_bool() {
+                Ok(Value::Bool(b))
+            } else if let Some(x) = raw.as_f64() {
+                Ok(Value::Num(x))
+            } else if let Some(t) = raw.as_string() {
+                def.parse(&t)
+            } else {
+                Err(format!("{} must be {}", def.key, def.range()))
+            };
+            value.and_then(|v| def.set(&mut settings, v)).map_err(|e| error("RangeError", &e))?;
         }
         if let Some(v) = field(o, "name")? {
             name = Some(v.as_string().ok_or_else(|| error("TypeError", "name must be a string"))?);
@@ -335,15 +327,77 @@ impl Options {
     }
 }
 
-/// The preflight for a cloud of `points` points (`colours`: whether it has colours)
-/// reconstructed with `options` (as for [`reconstruct`]) on the viewer's adapter (the worker's
-/// is the same adapter): one line per stage with its GPU and host memory, the limits, and what
-/// will be changed to fit. The reconstruction applies the same plan.
+/// Every setting the options of [`reconstruct`] and [`preflight`] take, for the page's form and
+/// share links (`web/settings.js`), in display order: `{ key, flag, label, help, kind ("int" |
+/// "float" | "choice" | "switch"), min?, max?, choices? [{value, label}], presets [{value,
+/// label}], default (null: off), canBeOff, nkrrOnly, advanced }`. From [`crate::settings::TABLE`].
 #[wasm_bindgen]
-pub fn preflight(points: usize, colours: bool, options: JsValue, viewer: &super::Viewer) -> Result<Vec<String>, JsValue> {
+pub fn settings_table() -> Array {
+    let js = |v: Value| -> JsValue {
+        match v {
+            Value::Off => JsValue::NULL,
+            Value::Bool(b) => b.into(),
+            Value::Num(x) => x.into(),
+            Value::Choice(c) => c.into(),
+        }
+    };
+    let pairs = |items: Vec<(JsValue, &str)>| -> Array {
+        items
+            .into_iter()
+            .map(|(value, label)| {
+                let o = Object::new();
+                set(&o, "value", value);
+                set(&o, "label", label);
+                JsValue::from(o)
+            })
+            .collect()
+    };
+    settings::TABLE
+        .iter()
+        .map(|def| {
+            let o = Object::new();
+            set(&o, "key", def.key);
+            set(&o, "flag", def.flag);
+            set(&o, "label", def.label);
+            set(&o, "help", def.help);
+            let kind = match def.kind {
+                Kind::Int { min, max } | Kind::Float { min, max } => {
+                    set(&o, "min", min);
+                    set(&o, "max", max);
+                    if matches!(def.kind, Kind::Int { .. }) { "int" } else { "float" }
+                }
+                Kind::Choice(choices) => {
+                    set(&o, "choices", pairs(choices.iter().map(|(v, l)| (JsValue::from_str(v), *l)).collect()));
+                    "choice"
+                }
+                Kind::Switch => "switch",
+            };
+            set(&o, "kind", kind);
+            set(&o, "presets", pairs(def.presets.iter().map(|(v, l)| (JsValue::from_f64(*v), *l)).collect()));
+            set(&o, "default", js(def.default));
+            set(&o, "canBeOff", def.can_be_off);
+            set(&o, "nkrrOnly", def.nkrr_only);
+            set(&o, "advanced", def.advanced);
+            JsValue::from(o)
+        })
+        .collect()
+}
+
+/// The preflight for a cloud of `points` points (`colours`: whether it has colours)
+/// reconstructed with `options` (as for [`reconstruct`]) on an adapter whose largest buffer
+/// binding is `binding` bytes (`software`: a CPU adapter such as SwiftShader; the page takes
+/// both from [`super::Viewer::adapter_facts`], whose adapter the worker shares): one line per
+/// stage with its GPU and host memory, the limits, and what will be changed to fit. The
+/// reconstruction applies the same plan.
+#[wasm_bindgen]
+pub fn preflight(points: usize, colours: bool, options: JsValue, binding: f64, software: bool) -> Result<Vec<String>, JsValue> {
     let opts = Options::from_js(&options)?;
     let config = crate::net::NetConfig::prior().map_err(|e| error("NetError", &e.to_string()))?;
-    let facts = crate::plan::DeviceFacts::of(viewer.gpu());
+    let facts = crate::plan::DeviceFacts {
+        binding: binding.max(0.0) as u64,
+        software,
+        host_budget: Some(crate::plan::WASM_HOST_BUDGET),
+    };
     Ok(crate::plan::memory_plan(points, colours, &opts.settings, &config, &facts).lines())
 }
 
@@ -351,24 +405,6 @@ pub fn preflight(points: usize, colours: bool, options: JsValue, viewer: &super:
 fn field(o: &JsValue, key: &str) -> Result<Option<JsValue>, JsValue> {
     let v = Reflect::get(o, &JsValue::from_str(key))?;
     Ok((!v.is_undefined() && !v.is_null()).then_some(v))
-}
-
-fn number(o: &JsValue, key: &str, lo: f64, hi: f64) -> Result<Option<f64>, JsValue> {
-    let Some(v) = field(o, key)? else { return Ok(None) };
-    // Form fields arrive as strings; accept numeric strings too.
-    let x = v.as_f64().or_else(|| v.as_string().and_then(|s| s.trim().parse().ok()));
-    match x {
-        Some(x) if x.is_finite() && (lo..=hi).contains(&x) => Ok(Some(x)),
-        _ => Err(error("RangeError", &format!("{key} must be a number between {lo} and {hi}"))),
-    }
-}
-
-fn integer(o: &JsValue, key: &str, lo: f64, hi: f64) -> Result<Option<f64>, JsValue> {
-    match number(o, key, lo, hi) {
-        Ok(Some(x)) if x.fract() != 0.0 => Err(error("RangeError", &format!("{key} must be a whole number"))),
-        Err(_) => Err(error("RangeError", &format!("{key} must be a whole number between {lo} and {hi}"))),
-        r => r,
-    }
 }
 
 pub(super) fn set(o: &Object, key: &str, value: impl Into<JsValue>) {

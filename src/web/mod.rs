@@ -5,7 +5,7 @@
 mod api;
 mod viewer;
 
-pub use api::{preflight, prepare_engine, reconstruct, simulate_device_loss};
+pub use api::{preflight, prepare_engine, reconstruct, settings_table, simulate_device_loss};
 pub use viewer::Viewer;
 
 use wasm_bindgen::prelude::*;

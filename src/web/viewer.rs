@@ -142,13 +142,6 @@ pub struct Viewer {
     point_budget: usize,
 }
 
-impl Viewer {
-    /// The viewer's GPU (the page's adapter), for the preflight's limits.
-    pub(crate) fn gpu(&self) -> &Gpu {
-        &self.gpu
-    }
-}
-
 #[wasm_bindgen]
 impl Viewer {
     /// Creates the view on `canvas`; fails with a readable message where WebGPU is missing.
@@ -271,6 +264,19 @@ impl Viewer {
     #[wasm_bindgen(getter)]
     pub fn adapter(&self) -> String {
         self.gpu.describe()
+    }
+
+    /// The largest buffer a shader may bind on this adapter, in bytes (for [`super::preflight`];
+    /// the worker's device is on the same adapter).
+    #[wasm_bindgen(getter)]
+    pub fn binding_limit(&self) -> f64 {
+        crate::gpu::binding_limit(&self.gpu.limits) as f64
+    }
+
+    /// Whether the adapter is a software one (SwiftShader): nkrr's tuning then runs on the CPU.
+    #[wasm_bindgen(getter)]
+    pub fn software(&self) -> bool {
+        self.gpu.is_software()
     }
 
     /// Shows `cloud` and frames it; a mesh of an earlier cloud is removed.

@@ -1,0 +1,208 @@
+//! The field whose zero level is the surface: the network's logit l(q), or the paper's kernel
+//! regression g(F(q)) fitted to the cloud (`docs/method.md` §1–§4).
+//!
+//! This stage owns everything between the network's features and the mesher's field
+//! evaluations: the training pairs (input points at label 0, extra points labelled by the
+//! network, paper eq. 6), the initialisation and test-time tuning of the Nyström KRR (on the GPU
+//! or the f64 CPU reference), and one `evaluate` for the mesher that decodes queries and applies
+//! the fitted regression on the backend it was tuned on. [`crate::pipeline`] only strings it
+//! between the other stages.
+
+use std::cell::RefCell;
+
+use crate::gpu::{Gpu, GpuError};
+use crate::krr::{self, KrrError, LengthScaleInit, TuneSettings};
+use crate::net::{GpuNet, GpuPlanes};
+use crate::settings::{Method, Settings};
+
+/// Octaves of the coordinate encoding used by the "w/o features" ablation: x, and
+/// sin/cos(2^k π x) for k < FOURIER_OCTAVES, per axis (3 + 6·5 = 33 dimensions).
+pub const FOURIER_OCTAVES: usize = 5;
+
+/// Dimensions of [`fourier_encode`]'s output.
+pub const FOURIER_DIM: usize = 3 + 6 * FOURIER_OCTAVES;
+
+/// The regression's input for the "w/o features" ablation.
+pub fn fourier_encode(points: &[[f32; 3]]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(points.len() * FOURIER_DIM);
+    for p in points {
+        out.extend_from_slice(p);
+        for k in 0..FOURIER_OCTAVES {
+            let w = std::f32::consts::PI * (1u32 << k) as f32;
+            for &x in p {
+                out.push((w * x).sin());
+                out.push((w * x).cos());
+            }
+        }
+    }
+    out
+}
+
+/// Dimensions of the regression's input for `settings` and a network with `c_dim` features.
+pub fn input_dim(settings: &Settings, c_dim: usize) -> usize {
+    if settings.euclidean {
+        FOURIER_DIM
+    } else {
+        c_dim
+    }
+}
+
+/// The fitted regression g(x) = Σ_j β_j k(x, z_j), evaluated where it was tuned.
+pub struct KrrField {
+    params: krr::Params,
+    beta: Vec<f64>,
+    /// Fourier-encoded coordinates instead of the network's features (the ablation).
+    euclidean: bool,
+    /// The GPU predictor when the regression was tuned on the GPU; else the f64 reference.
+    gpu: Option<krr::GpuPredictor>,
+}
+
+impl KrrField {
+    /// g at `points`, whose network features are `features`.
+    pub async fn predict(&self, points: &[[f32; 3]], features: Vec<f32>) -> Result<Vec<f32>, String> {
+        let x = if self.euclidean { fourier_encode(points) } else { features };
+        let (beta, z, log_s) = (&self.beta, &self.params.z, &self.params.log_s);
+        match &self.gpu {
+            Some(p) => p.predict(beta, z, log_s, &x).await.map_err(|e| e.to_string()),
+            None => {
+                let x: Vec<f64> = x.iter().map(|&v| v as f64).collect();
+                krr::predict(beta, z, log_s, &x).map(|g| g.into_iter().map(|v| v as f32).collect()).map_err(|e| e.to_string())
+            }
+        }
+    }
+}
+
+/// The field the mesher evaluates: the network alone, or the network's features through the
+/// fitted regression.
+pub enum Field {
+    Network,
+    Krr(KrrField),
+}
+
+impl Field {
+    /// The field at `points` (the unit cube), decoding their features from `planes`.
+    pub async fn evaluate(&self, net: &GpuNet, planes: &GpuPlanes, points: &[[f32; 3]]) -> Result<Vec<f32>, String> {
+        let (features, logits) = net.decode(planes, points).await.map_err(|e| e.to_string())?;
+        match self {
+            Field::Network => Ok(logits),
+            Field::Krr(fit) => fit.predict(points, features).await,
+        }
+    }
+}
+
+/// What the kernel regression's tuning did, for reports and benchmarks.
+#[derive(Clone, Debug)]
+pub struct TuningSummary {
+    /// "gpu" or "cpu": where the objective ran.
+    pub backend: &'static str,
+    pub n: usize,
+    pub m: usize,
+    pub steps_run: usize,
+    pub best_step: usize,
+    pub stop: String,
+    pub initial_loss: f64,
+    pub final_loss: f64,
+    pub initial_data_fit: f64,
+    pub best_data_fit: f64,
+    pub length_scales: Vec<f64>,
+    /// Objective evaluations and their summed phase times, when the objective ran on the GPU.
+    pub evaluations: usize,
+    pub phases: Option<krr::PhaseTimings>,
+}
+
+/// Why the field could not be fitted.
+#[derive(Debug)]
+pub enum FitError {
+    Gpu(GpuError),
+    Krr(KrrError),
+    Cancelled,
+}
+
+impl From<GpuError> for FitError {
+    fn from(e: GpuError) -> Self {
+        FitError::Gpu(e)
+    }
+}
+
+impl From<KrrError> for FitError {
+    fn from(e: KrrError) -> Self {
+        FitError::Krr(e)
+    }
+}
+
+/// X = F([P, P~]), y = [0, l(P~)] (paper eq. 6): the input points lie on the surface (logit 0),
+/// the extra points take the network's logit as a pseudo-label, clipped to
+/// [`Settings::label_clip`].
+pub async fn training_pairs(
+    net: &GpuNet,
+    planes: &GpuPlanes,
+    points: &[[f32; 3]],
+    settings: &Settings,
+) -> Result<krr::Problem, FitError> {
+    let extra = crate::sample::upsample(points, settings.knn_k, 2);
+    let mut all = points.to_vec();
+    all.extend_from_slice(&extra);
+    let (features, logits) = net.decode(planes, &all).await?;
+    let clip = settings.label_clip.unwrap_or(f32::INFINITY);
+    let y: Vec<f32> =
+        logits.iter().enumerate().map(|(i, &l)| if i < points.len() { 0.0 } else { l.clamp(-clip, clip) }).collect();
+    let x = if settings.euclidean { fourier_encode(&all) } else { features };
+    Ok(krr::Problem::from_f32(&x, &y, input_dim(settings, net.config().c_dim))?)
+}
+
+/// Initialises (Z from rows of X, length-scales from the features' spread) and tunes the
+/// Nyström KRR with `m` inducing points, keeping the parameters with the lowest training error
+/// (method.md §4). `progress(step, loss)` returning false cancels.
+pub async fn fit(
+    gpu: &Gpu,
+    problem: &krr::Problem,
+    settings: &Settings,
+    m: usize,
+    progress: &mut dyn FnMut(usize, f64) -> bool,
+) -> Result<(KrrField, TuningSummary), FitError> {
+    debug_assert_eq!(settings.method, Method::Nkrr);
+    let m = m.clamp(1, problem.n());
+    let init = krr::init_params(problem, m, 3, LengthScaleInit::default());
+    let ridge = krr::Ridge::new(settings.lambda, m);
+    let ts = TuneSettings { steps: settings.steps, tune_theta: settings.tune_theta, tune_z: settings.tune_z, ..Default::default() };
+    let on_gpu = settings.krr_backend.on_gpu(gpu.is_software());
+    let report = |step: usize, eval: &krr::Eval| progress(step, eval.loss);
+    let (result, predictor, evaluations, phases) = if on_gpu {
+        let objective = krr::GpuObjective::new(gpu, problem, ridge).await.map_err(KrrError::from)?;
+        let objective = RefCell::new(objective);
+        let evaluate = |params: krr::Params, needs_grad: bool| {
+            let objective = &objective;
+            async move { objective.borrow_mut().evaluate(&params, needs_grad).await }
+        };
+        let result = krr::tune_async(evaluate, init, &ts, report).await?;
+        let objective = objective.into_inner();
+        (result, Some(objective.predictor().clone()), objective.evaluations, Some(objective.total_timings))
+    } else {
+        let mut objective = krr::Reference { problem, settings: ridge };
+        let result = krr::tune(&mut objective, init, &ts, report)?;
+        let evaluations = result.history.len();
+        (result, None, evaluations, None)
+    };
+    if matches!(result.stop, krr::StopReason::Cancelled) {
+        return Err(FitError::Cancelled);
+    }
+    // The tuner's first evaluation is of the initial parameters.
+    let (first, last) = (result.history[0], result.history[result.history.len() - 1]);
+    let summary = TuningSummary {
+        backend: if on_gpu { "gpu" } else { "cpu" },
+        n: problem.n(),
+        m,
+        steps_run: result.history.len() - 1,
+        best_step: result.best_step,
+        stop: format!("{:?}", result.stop),
+        initial_loss: first.loss,
+        final_loss: last.loss,
+        initial_data_fit: first.data_fit,
+        best_data_fit: result.eval.data_fit,
+        length_scales: result.params.length_scales(),
+        evaluations,
+        phases,
+    };
+    let field = KrrField { beta: result.eval.beta, params: result.params, euclidean: settings.euclidean, gpu: predictor };
+    Ok((field, summary))
+}

@@ -1,0 +1,672 @@
+//! Every setting of a reconstruction, defined once.
+//!
+//! [`TABLE`] holds, for each setting, its JS option and share-link key, its command-line flag,
+//! its form label, one line of help, its kind and range, and its default; everything else is
+//! derived from it: [`Settings::default`], the CLI's parsing and usage text (`src/bin/nkrr.rs`),
+//! the wasm API's options and the page's form and share links (`settings_table` in
+//! `src/web/api.rs`, read by `web/settings.js`). A default or a range written anywhere else is a
+//! bug: `tests/settings.rs` and `tests/browser/settings.test.mjs` check that the CLI, the JS API
+//! and the page offer the same settings with the same defaults and ranges. (In the spirit of
+//! ripgrep's one list of flags.)
+//!
+//! [`Settings`] is what the user asked for; what the program decides from it to fit the machine
+//! (a subsample, fewer inducing points) is [`crate::plan::MemoryPlan`]'s, and never written back
+//! here.
+
+use crate::units::Units;
+
+/// Which field the surface is the level set of.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// The network prior alone: occupancy sigmoid(l(q)).
+    Network,
+    /// The paper's method: Nyström KRR on the network's features, tuned to the shape.
+    Nkrr,
+}
+
+/// Where the kernel regression's objective and gradient are computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KrrBackend {
+    /// The GPU on real GPUs; the f64 CPU reference on software adapters (lavapipe,
+    /// SwiftShader), where the GPU path's exact fixed-point Gram matrix is measured to be ~5x
+    /// slower than the CPU (docs/krr.md).
+    Auto,
+    Gpu,
+    Cpu,
+}
+
+impl KrrBackend {
+    /// Whether the objective runs on the GPU, on an adapter that is (`software`) or is not a
+    /// software one.
+    pub fn on_gpu(self, software: bool) -> bool {
+        match self {
+            KrrBackend::Gpu => true,
+            KrrBackend::Cpu => false,
+            KrrBackend::Auto => !software,
+        }
+    }
+}
+
+/// Everything a reconstruction can be told. The defaults are [`TABLE`]'s (the paper's where it
+/// has one); see each entry there for what a field means and its range.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Settings {
+    pub method: Method,
+    pub resolution: u32,
+    pub remove_small_components: Option<f32>,
+    pub max_points: usize,
+    pub m: usize,
+    pub steps: usize,
+    pub lambda: f64,
+    pub tune_theta: bool,
+    pub tune_z: bool,
+    pub knn_k: usize,
+    pub label_clip: Option<f32>,
+    pub euclidean: bool,
+    pub krr_backend: KrrBackend,
+    pub trim: Option<f32>,
+    pub colors: bool,
+    pub units: Option<Units>,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        // Placeholders only: every field is then set from its TABLE entry's default (the test
+        // `every_field_has_one_entry` checks that each one is).
+        let mut s = Settings {
+            method: Method::Network,
+            resolution: 0,
+            remove_small_components: None,
+            max_points: 0,
+            m: 0,
+            steps: 0,
+            lambda: 0.0,
+            tune_theta: false,
+            tune_z: false,
+            knn_k: 0,
+            label_clip: None,
+            euclidean: false,
+            krr_backend: KrrBackend::Auto,
+            trim: None,
+            colors: false,
+            units: None,
+        };
+        for def in TABLE {
+            (def.set)(&mut s, def.default);
+        }
+        s
+    }
+}
+
+/// A setting's value, as the table speaks of it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Value {
+    /// Off: a setting that can be off (see [`Setting::can_be_off`]) or a choice with no value.
+    Off,
+    Bool(bool),
+    Num(f64),
+    Choice(&'static str),
+}
+
+/// What values a setting takes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Kind {
+    /// A whole number in `min..=max`.
+    Int { min: f64, max: f64 },
+    /// A number in `min..=max`.
+    Float { min: f64, max: f64 },
+    /// One of (value, label); a setting whose default is [`Value::Off`] also takes "" for off.
+    Choice(&'static [(&'static str, &'static str)]),
+    /// On or off. Its CLI flag sets the opposite of the default (`--no-colors`, `--euclidean`).
+    Switch,
+}
+
+/// One setting: everything the CLI, the JS API, share links and the page's form need.
+pub struct Setting {
+    /// The JS option and share-link parameter (camelCase).
+    pub key: &'static str,
+    /// The command-line flag.
+    pub flag: &'static str,
+    /// The form's label.
+    pub label: &'static str,
+    /// One line of help (the CLI's usage, the form's hint).
+    pub help: &'static str,
+    pub kind: Kind,
+    pub default: Value,
+    /// A number setting that can be off: 0 (JS, links, forms) or [`Setting::off_flag`] turns
+    /// it off.
+    pub can_be_off: bool,
+    /// The CLI flag that turns it off (`--no-label-clip`).
+    pub off_flag: Option<&'static str>,
+    /// The value the CLI flag takes when no number follows it (`--trim` alone).
+    pub bare: Option<f64>,
+    /// Other CLI flags that set a fixed value (`--no-tune` is `--steps 0`).
+    pub aliases: &'static [(&'static str, f64)],
+    /// Suggested values for the page's menu (empty: a number field).
+    pub presets: &'static [(f64, &'static str)],
+    /// Only meaningful with [`Method::Nkrr`] (the page hides it for the network).
+    pub nkrr_only: bool,
+    /// Behind the page's "Advanced settings" (ablations, tuning knobs).
+    pub advanced: bool,
+    get: fn(&Settings) -> Value,
+    set: fn(&mut Settings, Value),
+}
+
+const NUM: Setting = Setting {
+    key: "",
+    flag: "",
+    label: "",
+    help: "",
+    kind: Kind::Switch,
+    default: Value::Off,
+    can_be_off: false,
+    off_flag: None,
+    bare: None,
+    aliases: &[],
+    presets: &[],
+    nkrr_only: false,
+    advanced: false,
+    get: |_| Value::Off,
+    set: |_, _| {},
+};
+
+fn num(v: Value) -> f64 {
+    match v {
+        Value::Num(x) => x,
+        _ => 0.0,
+    }
+}
+
+fn opt_f32(v: Value) -> Option<f32> {
+    match v {
+        Value::Num(x) => Some(x as f32),
+        _ => None,
+    }
+}
+
+fn from_opt(v: Option<f32>) -> Value {
+    v.map_or(Value::Off, |x| Value::Num(x as f64))
+}
+
+fn flag(v: Value) -> bool {
+    v == Value::Bool(true)
+}
+
+fn choice(v: Value) -> &'static str {
+    match v {
+        Value::Choice(s) => s,
+        _ => "",
+    }
+}
+
+/// Every setting, in the order the page and the usage text show them.
+pub static TABLE: &[Setting] = &[
+    Setting {
+        key: "method",
+        flag: "--method",
+        label: "Method",
+        help: "the field to mesh: nkrr (the paper's tuned kernel regression) or the network prior alone",
+        kind: Kind::Choice(&[("nkrr", "NKRR (paper)"), ("network", "Network prior")]),
+        default: Value::Choice("nkrr"),
+        get: |s| Value::Choice(match s.method {
+            Method::Nkrr => "nkrr",
+            Method::Network => "network",
+        }),
+        set: |s, v| s.method = if choice(v) == "network" { Method::Network } else { Method::Nkrr },
+        ..NUM
+    },
+    Setting {
+        key: "m",
+        flag: "--m",
+        label: "Inducing points m",
+        help: "inducing points of the Nyström KRR (paper: 500; 1000 slightly better; 5000 overfits)",
+        kind: Kind::Int { min: 1.0, max: 5000.0 },
+        default: Value::Num(500.0),
+        nkrr_only: true,
+        get: |s| Value::Num(s.m as f64),
+        set: |s, v| s.m = num(v) as usize,
+        ..NUM
+    },
+    Setting {
+        key: "steps",
+        flag: "--steps",
+        label: "Tuning steps",
+        help: "Adam steps of the test-time tuning (paper: 100; 0: no tuning)",
+        kind: Kind::Int { min: 0.0, max: 1000.0 },
+        default: Value::Num(100.0),
+        aliases: &[("--no-tune", 0.0)],
+        nkrr_only: true,
+        get: |s| Value::Num(s.steps as f64),
+        set: |s, v| s.steps = num(v) as usize,
+        ..NUM
+    },
+    Setting {
+        key: "resolution",
+        flag: "--resolution",
+        label: "Resolution",
+        help: "marching-cubes resolution over the padded unit cube (128 is about ConvONet's output)",
+        kind: Kind::Int { min: 16.0, max: crate::mesh::refine::MAX_RESOLUTION as f64 },
+        default: Value::Num(128.0),
+        presets: &[(64.0, "64³"), (96.0, "96³"), (128.0, "128³"), (192.0, "192³"), (256.0, "256³")],
+        get: |s| Value::Num(s.resolution as f64),
+        set: |s, v| s.resolution = num(v) as u32,
+        ..NUM
+    },
+    Setting {
+        key: "removeSmall",
+        flag: "--remove-small",
+        label: "Remove small pieces",
+        help: "drop components with fewer than this fraction of the largest one's triangles",
+        kind: Kind::Float { min: 0.0, max: 1.0 },
+        default: Value::Off,
+        can_be_off: true,
+        presets: &[(0.0, "Off"), (0.01, "< 1% of the largest"), (0.05, "< 5% of the largest"), (0.2, "< 20% of the largest")],
+        get: |s| from_opt(s.remove_small_components),
+        set: |s, v| s.remove_small_components = opt_f32(v),
+        ..NUM
+    },
+    Setting {
+        key: "units",
+        flag: "--units",
+        label: "Units of the cloud",
+        help: "the cloud's length unit: the mesh is scaled to metres (glTF's unit); unset keeps coordinates as they are",
+        kind: Kind::Choice(&[
+            ("mm", "millimetres"),
+            ("cm", "centimetres"),
+            ("m", "metres"),
+            ("in", "inches"),
+            ("ft", "feet"),
+        ]),
+        default: Value::Off,
+        get: |s| s.units.map_or(Value::Off, |u| Value::Choice(u.code())),
+        set: |s, v| s.units = choice(v).parse().ok(),
+        ..NUM
+    },
+    Setting {
+        key: "trim",
+        flag: "--trim",
+        label: "Trim to the scan",
+        help: "open the surface where there are no points: drop triangles farther than this many mean point spacings from them",
+        kind: Kind::Float { min: 0.1, max: 1000.0 },
+        default: Value::Off,
+        can_be_off: true,
+        bare: Some(3.0),
+        advanced: true,
+        get: |s| from_opt(s.trim),
+        set: |s, v| s.trim = opt_f32(v),
+        ..NUM
+    },
+    Setting {
+        key: "colors",
+        flag: "--no-colors",
+        label: "Vertex colours",
+        help: "colour the mesh's vertices from a coloured cloud (COLOR_0); the flag leaves them out",
+        kind: Kind::Switch,
+        default: Value::Bool(true),
+        advanced: true,
+        get: |s| Value::Bool(s.colors),
+        set: |s, v| s.colors = flag(v),
+        ..NUM
+    },
+    Setting {
+        key: "maxPoints",
+        flag: "--max-points",
+        label: "Points for the network",
+        help: "larger clouds are subsampled uniformly (seeded) for the encoder, which was trained on 500-10k points",
+        kind: Kind::Int { min: 1.0, max: 100_000_000.0 },
+        default: Value::Num(100_000.0),
+        advanced: true,
+        get: |s| Value::Num(s.max_points as f64),
+        set: |s, v| s.max_points = num(v) as usize,
+        ..NUM
+    },
+    Setting {
+        key: "lambda",
+        flag: "--lambda",
+        label: "Ridge λ",
+        help: "ridge parameter of the KRR (the paper does not give it; chosen on the eval clouds, docs/krr.md)",
+        kind: Kind::Float { min: 1e-12, max: 1e6 },
+        default: Value::Num(1e-5),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Num(s.lambda),
+        set: |s, v| s.lambda = num(v),
+        ..NUM
+    },
+    Setting {
+        key: "labelClip",
+        flag: "--label-clip",
+        label: "Label clip",
+        help: "clip the network logits used as targets to [-C, C]; off regresses the raw logits, as the paper does",
+        kind: Kind::Float { min: 1e-3, max: 1e6 },
+        default: Value::Num(4.0),
+        can_be_off: true,
+        off_flag: Some("--no-label-clip"),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| from_opt(s.label_clip),
+        set: |s, v| s.label_clip = opt_f32(v),
+        ..NUM
+    },
+    Setting {
+        key: "knnK",
+        flag: "--knn-k",
+        label: "Offset neighbour",
+        help: "neighbour rank whose distance scales the offsets of the extra training points",
+        kind: Kind::Int { min: 1.0, max: 1000.0 },
+        default: Value::Num(50.0),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Num(s.knn_k as f64),
+        set: |s, v| s.knn_k = num(v) as usize,
+        ..NUM
+    },
+    Setting {
+        key: "tuneTheta",
+        flag: "--no-theta",
+        label: "Tune length-scales",
+        help: "tune the kernel length-scales θ (the flag is the paper's ablation 'w/o θ')",
+        kind: Kind::Switch,
+        default: Value::Bool(true),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Bool(s.tune_theta),
+        set: |s, v| s.tune_theta = flag(v),
+        ..NUM
+    },
+    Setting {
+        key: "tuneZ",
+        flag: "--no-z",
+        label: "Tune inducing points",
+        help: "tune the inducing points Z (the flag is the paper's ablation 'w/o Z')",
+        kind: Kind::Switch,
+        default: Value::Bool(true),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Bool(s.tune_z),
+        set: |s, v| s.tune_z = flag(v),
+        ..NUM
+    },
+    Setting {
+        key: "euclidean",
+        flag: "--euclidean",
+        label: "Coordinates, not features",
+        help: "regress on Fourier-encoded coordinates instead of the network's features (the paper's ablation)",
+        kind: Kind::Switch,
+        default: Value::Bool(false),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Bool(s.euclidean),
+        set: |s, v| s.euclidean = flag(v),
+        ..NUM
+    },
+    Setting {
+        key: "krrBackend",
+        flag: "--krr-backend",
+        label: "Regression runs on",
+        help: "where the KRR objective runs (auto: CPU f64 on software adapters, the GPU otherwise)",
+        kind: Kind::Choice(&[("auto", "auto"), ("gpu", "GPU"), ("cpu", "CPU (f64)")]),
+        default: Value::Choice("auto"),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Choice(match s.krr_backend {
+            KrrBackend::Auto => "auto",
+            KrrBackend::Gpu => "gpu",
+            KrrBackend::Cpu => "cpu",
+        }),
+        set: |s, v| {
+            s.krr_backend = match choice(v) {
+                "gpu" => KrrBackend::Gpu,
+                "cpu" => KrrBackend::Cpu,
+                _ => KrrBackend::Auto,
+            }
+        },
+        ..NUM
+    },
+];
+
+/// The entry with JS/link key `key`.
+pub fn by_key(key: &str) -> Option<&'static Setting> {
+    TABLE.iter().find(|d| d.key == key)
+}
+
+/// The entry with CLI flag `flag`.
+pub fn by_flag(flag: &str) -> Option<&'static Setting> {
+    TABLE.iter().find(|d| d.flag == flag)
+}
+
+impl Setting {
+    /// The value of this setting in `s`.
+    pub fn get(&self, s: &Settings) -> Value {
+        (self.get)(s)
+    }
+
+    /// Sets this setting in `s` to `v`, after [`Setting::check`].
+    pub fn set(&self, s: &mut Settings, v: Value) -> Result<(), String> {
+        let v = self.check(v)?;
+        (self.set)(s, v);
+        Ok(())
+    }
+
+    /// `v` if this setting takes it, else a message that names the setting and its range.
+    pub fn check(&self, v: Value) -> Result<Value, String> {
+        match (self.kind, v) {
+            (_, Value::Off) if self.can_be_off || (self.default == Value::Off && matches!(self.kind, Kind::Choice(_))) => {
+                Ok(Value::Off)
+            }
+            (Kind::Int { .. } | Kind::Float { .. }, Value::Num(0.0)) if self.can_be_off => Ok(Value::Off),
+            (Kind::Int { min, max }, Value::Num(x)) if x.is_finite() && x.fract() == 0.0 && (min..=max).contains(&x) => {
+                Ok(v)
+            }
+            (Kind::Float { min, max }, Value::Num(x)) if x.is_finite() && (min..=max).contains(&x) => Ok(v),
+            (Kind::Choice(choices), Value::Choice(c)) => {
+                choices.iter().find(|(value, _)| *value == c).map(|(value, _)| Value::Choice(value)).ok_or_else(|| self.range_error())
+            }
+            (Kind::Switch, Value::Bool(_)) => Ok(v),
+            _ => Err(self.range_error()),
+        }
+    }
+
+    /// Reads `text` (a CLI argument, a share link's parameter, a form field) as a value of this
+    /// setting.
+    pub fn parse(&self, text: &str) -> Result<Value, String> {
+        let text = text.trim();
+        match self.kind {
+            Kind::Int { .. } | Kind::Float { .. } => {
+                if text.is_empty() && self.can_be_off {
+                    return Ok(Value::Off);
+                }
+                let x: f64 = text.parse().map_err(|_| self.range_error())?;
+                self.check(Value::Num(x))
+            }
+            Kind::Choice(choices) => {
+                if text.is_empty() {
+                    return self.check(Value::Off);
+                }
+                let c = choices.iter().find(|(value, _)| *value == text).map(|(value, _)| *value);
+                c.map(Value::Choice).ok_or_else(|| self.range_error())
+            }
+            Kind::Switch => match text {
+                // A bare share-link parameter (`?euclidean`) means on.
+                "" | "true" | "1" | "on" | "yes" => Ok(Value::Bool(true)),
+                "false" | "0" | "off" | "no" => Ok(Value::Bool(false)),
+                _ => Err(self.range_error()),
+            },
+        }
+    }
+
+    /// What the setting takes, in words: "a whole number from 1 to 5000", "one of nkrr, network".
+    pub fn range(&self) -> String {
+        let off = if self.can_be_off { ", or 0 for off" } else { "" };
+        match self.kind {
+            Kind::Int { min, max } => format!("a whole number from {min} to {max}{off}"),
+            Kind::Float { min, max } => format!("a number from {min} to {max}{off}"),
+            Kind::Choice(choices) => {
+                let names: Vec<&str> = choices.iter().map(|(v, _)| *v).collect();
+                format!("one of {}", names.join(", "))
+            }
+            Kind::Switch => "true or false".to_string(),
+        }
+    }
+
+    fn range_error(&self) -> String {
+        format!("{} must be {}", self.key, self.range())
+    }
+
+    /// The default as text: "500", "nkrr", "off", "true".
+    pub fn default_text(&self) -> String {
+        value_text(self.default)
+    }
+
+    /// The usage text's line for this setting: flag, value, help, range and default.
+    pub fn usage_line(&self) -> String {
+        let head = match self.kind {
+            Kind::Switch => self.flag.to_string(),
+            Kind::Choice(choices) => {
+                let names: Vec<&str> = choices.iter().map(|(v, _)| *v).collect();
+                format!("{} {}", self.flag, names.join("|"))
+            }
+            Kind::Int { .. } => format!("{} N", self.flag),
+            Kind::Float { .. } if self.bare.is_some() => format!("{} [F]", self.flag),
+            Kind::Float { .. } => format!("{} F", self.flag),
+        };
+        let mut extra = Vec::new();
+        if let Some(off) = self.off_flag {
+            extra.push(format!("{off} turns it off"));
+        }
+        for (alias, v) in self.aliases {
+            extra.push(format!("{alias} means {} {v}", self.flag));
+        }
+        if let Some(b) = self.bare {
+            extra.push(format!("alone: {b}"));
+        }
+        let range = match self.kind {
+            Kind::Int { min, max } | Kind::Float { min, max } => format!(" ({min}..={max})"),
+            _ => String::new(),
+        };
+        let extra = if extra.is_empty() { String::new() } else { format!("; {}", extra.join("; ")) };
+        let default = match self.kind {
+            Kind::Switch => String::new(),
+            _ => format!("  [{}]", self.default_text()),
+        };
+        format!("        {head:<26} {}{range}{extra}{default}", self.help)
+    }
+}
+
+/// A value as text (the form the CLI and links take).
+pub fn value_text(v: Value) -> String {
+    match v {
+        Value::Off => "off".to_string(),
+        Value::Bool(b) => b.to_string(),
+        Value::Num(x) => format!("{x}"),
+        Value::Choice(c) => c.to_string(),
+    }
+}
+
+/// Applies command-line flag `arg` to `s`, taking its value from `rest` when it has one;
+/// returns how many of `rest` it used, or None when `arg` is not a setting's flag.
+pub fn apply_flag(s: &mut Settings, arg: &str, rest: &[String]) -> Option<Result<usize, String>> {
+    for def in TABLE {
+        if def.off_flag == Some(arg) {
+            return Some(def.set(s, Value::Off).map(|_| 0));
+        }
+        if let Some((_, v)) = def.aliases.iter().find(|(a, _)| *a == arg) {
+            return Some(def.set(s, Value::Num(*v)).map(|_| 0));
+        }
+        if def.flag != arg {
+            continue;
+        }
+        return Some(match (def.kind, def.bare) {
+            (Kind::Switch, _) => {
+                let on = def.default != Value::Bool(true);
+                def.set(s, Value::Bool(on)).map(|_| 0)
+            }
+            // The value is optional: take the next argument only when it is a number.
+            (_, Some(bare)) => match rest.first().and_then(|t| t.parse::<f64>().ok()) {
+                Some(x) => def.set(s, Value::Num(x)).map(|_| 1).map_err(|e| format!("{arg}: {e}")),
+                None => def.set(s, Value::Num(bare)).map(|_| 0),
+            },
+            _ => match rest.first() {
+                None => Err(format!("{arg} needs a value ({})", def.range())),
+                Some(t) => def.parse(t).and_then(|v| def.set(s, v)).map(|_| 1).map_err(|e| format!("{arg}: {e}")),
+            },
+        });
+    }
+    None
+}
+
+/// The usage text's block of reconstruction options, one line per setting.
+pub fn usage() -> String {
+    TABLE.iter().map(|d| d.usage_line() + "\n").collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_field_has_one_entry() {
+        // Changing one entry's value changes exactly that entry's reading of the struct.
+        let base = Settings::default();
+        for def in TABLE {
+            assert_eq!(def.get(&base), def.default, "{}", def.key);
+            let other = match def.kind {
+                Kind::Int { min, max } | Kind::Float { min, max } => {
+                    Value::Num(if def.default == Value::Num(max) { min } else { max })
+                }
+                Kind::Choice(c) => Value::Choice(c.iter().map(|(v, _)| *v).find(|v| Value::Choice(v) != def.default).unwrap()),
+                Kind::Switch => Value::Bool(def.default != Value::Bool(true)),
+            };
+            let mut s = base.clone();
+            def.set(&mut s, other).unwrap();
+            assert_eq!(def.get(&s), other, "{}", def.key);
+            for d in TABLE.iter().filter(|d| d.key != def.key) {
+                assert_eq!(d.get(&s), d.get(&base), "setting {} also changed {}", def.key, d.key);
+            }
+        }
+    }
+
+    #[test]
+    fn keys_and_flags_are_unique() {
+        let mut seen = std::collections::HashSet::new();
+        for d in TABLE {
+            assert!(seen.insert(d.key), "{}", d.key);
+            for f in [Some(d.flag), d.off_flag].into_iter().flatten().chain(d.aliases.iter().map(|a| a.0)) {
+                assert!(f.starts_with("--") && seen.insert(f), "{f}");
+            }
+        }
+    }
+
+    #[test]
+    fn values_out_of_range_are_refused_with_the_range() {
+        let m = by_key("m").unwrap();
+        assert_eq!(m.parse("0"), Err("m must be a whole number from 1 to 5000".into()));
+        assert_eq!(m.parse("2.5"), Err("m must be a whole number from 1 to 5000".into()));
+        assert_eq!(m.parse("1000"), Ok(Value::Num(1000.0)));
+        assert!(by_key("lambda").unwrap().parse("0").is_err());
+        assert!(by_key("lambda").unwrap().parse("nan").is_err());
+        assert_eq!(by_key("labelClip").unwrap().parse("0"), Ok(Value::Off));
+        assert_eq!(by_key("units").unwrap().parse(""), Ok(Value::Off));
+        assert!(by_key("units").unwrap().parse("furlong").is_err());
+        assert!(by_key("method").unwrap().parse("").is_err());
+        assert_eq!(by_key("euclidean").unwrap().parse(""), Ok(Value::Bool(true)));
+    }
+
+    #[test]
+    fn flags_apply() {
+        let mut s = Settings::default();
+        let args = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(apply_flag(&mut s, "--m", &args(&["800"])), Some(Ok(1)));
+        assert_eq!(apply_flag(&mut s, "--trim", &args(&["--m"])), Some(Ok(0)));
+        assert_eq!(s.trim, Some(3.0));
+        assert_eq!(apply_flag(&mut s, "--trim", &args(&["2"])), Some(Ok(1)));
+        assert_eq!(apply_flag(&mut s, "--no-label-clip", &[]), Some(Ok(0)));
+        assert_eq!(apply_flag(&mut s, "--no-tune", &[]), Some(Ok(0)));
+        assert_eq!(apply_flag(&mut s, "--no-colors", &[]), Some(Ok(0)));
+        assert_eq!(apply_flag(&mut s, "--euclidean", &[]), Some(Ok(0)));
+        assert_eq!((s.m, s.trim, s.label_clip, s.steps, s.colors, s.euclidean), (800, Some(2.0), None, 0, false, true));
+        assert!(matches!(apply_flag(&mut s, "--resolution", &args(&["8"])), Some(Err(_))));
+        assert!(matches!(apply_flag(&mut s, "--m", &[]), Some(Err(_))));
+        assert_eq!(apply_flag(&mut s, "--output", &[]), None);
+    }
+}

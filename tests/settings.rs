@@ -1,0 +1,78 @@
+//! Every setting is defined once (`src/settings.rs`): the CLI's usage and parsing offer exactly
+//! the table's settings, defaults and ranges. (The page's form, share links and the JS API are
+//! checked against the same table in `tests/browser/settings.test.mjs`.)
+
+use std::process::Command;
+
+use nkrr::settings::{self, Kind, Settings, Value, TABLE};
+
+fn nkrr(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_nkrr")).args(args).output().expect("run nkrr");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn the_usage_lists_every_setting_with_its_default_and_range() {
+    let (code, usage, _) = nkrr(&["--help"]);
+    assert_eq!(code, 0);
+    for def in TABLE {
+        let line = usage
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{} ", def.flag)) || l.trim() == def.flag)
+            .unwrap_or_else(|| panic!("{} is not in the usage:\n{usage}", def.flag));
+        if !matches!(def.kind, Kind::Switch) {
+            assert!(line.ends_with(&format!("[{}]", def.default_text())), "{}: {line}", def.key);
+        }
+        if let Kind::Int { min, max } | Kind::Float { min, max } = def.kind {
+            assert!(line.contains(&format!("({min}..={max})")), "{}: {line}", def.key);
+        }
+        if let Kind::Choice(choices) = def.kind {
+            for (value, _) in choices {
+                assert!(line.contains(value), "{}: {value} missing in {line}", def.key);
+            }
+        }
+        for flag in def.off_flag.into_iter().chain(def.aliases.iter().map(|a| a.0)) {
+            assert!(line.contains(flag), "{}: {flag} missing in {line}", def.key);
+        }
+    }
+    // Nothing else in the usage looks like a reconstruction option with its own default.
+    let flags: Vec<&str> = usage
+        .lines()
+        .filter(|l| l.starts_with("        --"))
+        .map(|l| l.split_whitespace().next().unwrap())
+        .filter(|f| !["--keep-meshes"].contains(f))
+        .collect();
+    for f in flags {
+        assert!(settings::by_flag(f).is_some(), "{f} is in the usage but not in the settings table");
+    }
+}
+
+#[test]
+fn the_cli_refuses_each_setting_out_of_range_with_the_tables_words() {
+    for def in TABLE {
+        let bad = match def.kind {
+            Kind::Int { max, .. } | Kind::Float { max, .. } => format!("{}", max * 2.0 + 1.0),
+            Kind::Choice(_) => "bogus".to_string(),
+            Kind::Switch => continue,
+        };
+        // `info` parses the options and stops there: no GPU work for a refused value.
+        let (code, _, err) = nkrr(&["info", "/nonexistent.ply", def.flag, &bad]);
+        assert_eq!(code, 2, "{} {bad}: {err}", def.flag);
+        assert!(err.contains(&format!("{}: {} must be {}", def.flag, def.key, def.range())), "{}: {err}", def.flag);
+    }
+}
+
+#[test]
+fn defaults_come_from_the_table() {
+    let s = Settings::default();
+    for def in TABLE {
+        assert_eq!(def.get(&s), def.default, "{}", def.key);
+    }
+    // The paper's values, where it has them.
+    assert_eq!((s.m, s.steps), (500, 100));
+    assert_eq!(settings::by_key("labelClip").unwrap().default, Value::Num(4.0));
+}
