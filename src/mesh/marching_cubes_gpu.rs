@@ -11,7 +11,7 @@
 use super::marching_cubes::weld;
 use super::refine::ActiveCells;
 use super::tables::CaseTable;
-use super::Mesh;
+use super::types::Mesh;
 use crate::gpu::{Gpu, GpuError};
 
 const SHADER: &str = include_str!("../../shaders/marching_cubes.wgsl");

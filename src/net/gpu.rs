@@ -29,7 +29,8 @@
 
 use std::collections::BTreeMap;
 
-use super::{Cells, NetConfig, Planes, Weights, ENCODER_BLOCKS, UV_MAX};
+use super::geometry::{Cells, Planes, UV_MAX};
+use super::weights::{NetConfig, Weights, ENCODER_BLOCKS};
 use crate::gpu::{Gpu, GpuError};
 
 const POINTNET_WGSL: &str = include_str!("../../shaders/net_pointnet.wgsl");
