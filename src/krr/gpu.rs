@@ -69,7 +69,7 @@ use super::kernel;
 use super::linalg::{self, dot};
 use super::reference::{kmm_side, mm_forward, mm_grad, Eval, Grad, MmForward, MmGrad, MmParts, Params, Problem, Settings};
 use super::KrrError;
-use crate::gpu::{Gpu, GpuError};
+use crate::gpu::{now as now_s, specialise, to_u32, Gpu, GpuError};
 
 const KERNEL_WGSL: &str = include_str!("../../shaders/krr_kernel_block.wgsl");
 const GRAM_WGSL: &str = include_str!("../../shaders/krr_gram.wgsl");
@@ -247,38 +247,8 @@ impl PhaseTimings {
     }
 }
 
-/// Seconds on a monotonic clock (performance.now() in the browser, where `Instant` panics).
-#[cfg(not(target_arch = "wasm32"))]
-fn now_s() -> f64 {
-    use std::sync::OnceLock;
-    use std::time::Instant;
-    static START: OnceLock<Instant> = OnceLock::new();
-    START.get_or_init(Instant::now).elapsed().as_secs_f64()
-}
-
-#[cfg(target_arch = "wasm32")]
-fn now_s() -> f64 {
-    web_sys::window().and_then(|w| w.performance()).map(|p| p.now()).unwrap_or_else(js_sys::Date::now) / 1e3
-}
-
 // ---------------------------------------------------------------------------------------------
 // pipelines
-
-/// Substitutes `{{KEY}}` placeholders.
-fn specialise(source: &str, vars: &[(&str, usize)]) -> String {
-    let mut s = source.to_string();
-    for (k, v) in vars {
-        s = s.replace(&format!("{{{{{k}}}}}"), &v.to_string());
-    }
-    debug_assert!(!s.contains("{{"), "unreplaced placeholder");
-    s
-}
-
-
-
-fn to_u32(what: &str, v: usize) -> Result<u32, GpuError> {
-    u32::try_from(v).map_err(|_| GpuError::TooLarge(format!("{what}: {v} does not fit 32 bits")))
-}
 
 fn check_d(d: usize) -> Result<(), KrrError> {
     if d == 0 {
