@@ -399,23 +399,37 @@ impl GpuPredictor {
         let o_buf = g.storage::<f32>("krr predict out", 2 * chunk)?;
         let mut out = Vec::with_capacity(nq);
         let scope = g.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let dims_of = |rows: usize, j_begin: usize| -> Result<PredictDims, GpuError> {
+            Ok(PredictDims {
+                q: to_u32("queries", rows)?,
+                j_begin: j_begin as u32,
+                j_end: to_u32("m", (j_begin + PREDICT_SEGMENT).min(m))?,
+                first: (j_begin == 0) as u32,
+                one: 1.0,
+                _pad: [0; 3],
+            })
+        };
+        // One uniform and bind group per segment of inducing points, built once per call and
+        // reused by every chunk; only a shorter last chunk rewrites the query count (queue
+        // writes are ordered after the earlier chunks' submissions).
+        let mut segments = Vec::new();
+        for j_begin in (0..m).step_by(PREDICT_SEGMENT) {
+            let dims = g.uniform("krr predict dims", &dims_of(chunk, j_begin)?);
+            let bg = g.bind_at(&self.pipe, &[(0, &q_buf), (1, &z_buf), (2, &s_buf), (3, &b_buf), (4, &o_buf), (5, &dims)]);
+            segments.push((j_begin, dims, bg));
+        }
         for q0 in (0..nq).step_by(chunk) {
             let rows = chunk.min(nq - q0);
             g.queue.write_buffer(&q_buf, 0, bytemuck::cast_slice(&queries[q0 * d..(q0 + rows) * d]));
+            if rows != chunk {
+                for (j_begin, dims, _) in &segments {
+                    g.queue.write_buffer(dims, 0, bytemuck::bytes_of(&dims_of(rows, *j_begin)?));
+                }
+            }
             let groups = g.dispatch_linear(rows as u64, TILE as u32)?;
             let mut enc = g.device.create_command_encoder(&Default::default());
-            for j_begin in (0..m).step_by(PREDICT_SEGMENT) {
-                let dims = PredictDims {
-                    q: to_u32("queries", rows)?,
-                    j_begin: j_begin as u32,
-                    j_end: to_u32("m", (j_begin + PREDICT_SEGMENT).min(m))?,
-                    first: (j_begin == 0) as u32,
-                    one: 1.0,
-                    _pad: [0; 3],
-                };
-                let dims = g.uniform("krr predict dims", &dims);
-                let bg = g.bind_at(&self.pipe, &[(0, &q_buf), (1, &z_buf), (2, &s_buf), (3, &b_buf), (4, &o_buf), (5, &dims)]);
-                g.encode_pass(&mut enc, &self.pipe, &bg, groups);
+            for (_, _, bg) in &segments {
+                g.encode_pass(&mut enc, &self.pipe, bg, groups);
             }
             g.queue.submit([enc.finish()]);
             let hl = g.read::<f32>(&o_buf, 2 * rows).await?;
