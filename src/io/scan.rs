@@ -1,9 +1,10 @@
-//! Any scan file in, one [`PointCloud`](crate::cloud::PointCloud) out: PLY, XYZ/PTS/CSV text, LAS/LAZ and E57, told apart
-//! by their content (a file's name only breaks ties and feeds a warning when it disagrees).
+//! Any scan file in, one [`PointCloud`](crate::cloud::PointCloud) out: PLY, XYZ/PTS/CSV text,
+//! LAS/LAZ and E57, told apart by their content (a file's name only breaks ties and feeds a
+//! warning when it disagrees).
 //!
 //! Each format has its own reader module; this one detects and dispatches. What every reader
 //! returns (and how it is described, the same way whatever the format, so `nkrr info` and the
-//! page say the same things) is in [`super::scan_file`], below the readers.
+//! page say the same things) is in `scan_file.rs`, below the readers.
 //! Every reader follows the PLY reader's discipline: an error says what is wrong and where, no
 //! input makes it panic, and nothing is allocated for a declared count before that count has
 //! been checked against the bytes that could hold it.
