@@ -8,7 +8,7 @@ use std::fmt;
 
 use crate::cloud::{subsample, CloudError, Normalization, PointCloud};
 use crate::field::{self, Field, FitError, TuningSummary};
-use crate::gpu::{Gpu, GpuError};
+use crate::gpu::{now, Gpu, GpuError};
 use crate::krr::KrrError;
 use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, ExtractStats, FieldError, Mesh, TrimReport};
 use crate::net::{GpuNet, NetError, Weights};
@@ -98,21 +98,6 @@ impl Reconstruction {
     /// The mesh's vertex positions in user coordinates, in f64.
     pub fn positions_f64(&self) -> Vec<[f64; 3]> {
         self.mesh.positions.iter().map(|p| [0, 1, 2].map(|a| p[a] as f64 + self.origin[a])).collect()
-    }
-}
-
-/// Seconds since an arbitrary origin; `Instant` does not exist on wasm32-unknown-unknown.
-pub fn now() -> f64 {
-    #[cfg(target_arch = "wasm32")]
-    {
-        js_sys::Date::now() / 1000.0
-    }
-    #[cfg(not(target_arch = "wasm32"))]
-    {
-        use std::sync::OnceLock;
-        use std::time::Instant;
-        static T0: OnceLock<Instant> = OnceLock::new();
-        T0.get_or_init(Instant::now).elapsed().as_secs_f64()
     }
 }
 

@@ -199,7 +199,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     let format = MeshFormat::from_path(&output)
         .ok_or_else(|| usage(&format!("-o {output}: the extension must be .glb, .ply, .obj or .stl")))?;
 
-    let t0 = nkrr::pipeline::now();
+    let t0 = nkrr::gpu::now();
     let (bytes, parsed) = read_scan(&input)?;
     drop(bytes);
     for w in parsed.warnings() {
@@ -259,7 +259,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         triangles,
         if rec.mesh.is_watertight() { "yes" } else { "no" },
         times.join(", "),
-        nkrr::pipeline::now() - t0,
+        nkrr::gpu::now() - t0,
         rec.extract.refine.evaluations,
     );
     Ok(())
@@ -343,10 +343,10 @@ fn bench(args: &[String]) -> Result<(), Failure> {
         let cloud = synthetic_torus(n, 0.005, n as u64);
         for &m in &ms {
             let s = Settings { m: m.max(1), ..settings.clone() };
-            let t0 = nkrr::pipeline::now();
+            let t0 = nkrr::gpu::now();
             let rec = pollster::block_on(engine.reconstruct(&cloud, &s, &mut |_| true))
                 .map_err(|e| fail(format!("{n} points, m {m}: {e}")))?;
-            let total = nkrr::pipeline::now() - t0;
+            let total = nkrr::gpu::now() - t0;
             let t = |stage: &str| rec.timings.iter().find(|(k, _)| *k == stage).map_or(0.0, |(_, v)| *v);
             let evals = rec.tuning.as_ref().map_or(0, |x| x.evaluations);
             let per_eval = if evals > 0 { t("tuning") / evals as f64 } else { 0.0 };
@@ -528,20 +528,20 @@ fn eval(args: &[String]) -> Result<(), Failure> {
             .map_err(|e| format!("cannot read {cloud_path}: {e}"))
             .and_then(|b| nkrr::io::ply::read_ply(&b).map_err(|e| format!("{cloud_path}: {e}")));
         for (method, settings) in &variants {
-            let t0 = nkrr::pipeline::now();
+            let t0 = nkrr::gpu::now();
             let mut times = Vec::new();
             let result = cloud.as_ref().map_err(Clone::clone).and_then(|parsed| {
                 let rec = pollster::block_on(engine.reconstruct(&parsed.cloud, settings, &mut |_| true))
                     .map_err(|e| format!("{cloud_path}: {e}"))?;
                 times = rec.timings.clone();
-                times.push(("total", nkrr::pipeline::now() - t0));
+                times.push(("total", nkrr::gpu::now() - t0));
                 if keep {
                     let opts = nkrr::io::gltf::GlbOptions { translation: rec.translation(), ..Default::default() };
                     let glb = nkrr::io::gltf::write_glb(&rec.mesh, &opts).map_err(|e| e.to_string())?;
                     let file = format!("{out}-{shape}-{size}-{method}.glb");
                     std::fs::write(&file, glb).map_err(|e| format!("cannot write {file}: {e}"))?;
                 }
-                let t1 = nkrr::pipeline::now();
+                let t1 = nkrr::gpu::now();
                 // Scored in the ground truth's (user) coordinates: far-off clouds come back
                 // relative to an origin.
                 let moved;
@@ -553,7 +553,7 @@ fn eval(args: &[String]) -> Result<(), Failure> {
                     None => &rec.mesh,
                 };
                 let m = gt.map_err(Clone::clone)?.evaluate(mesh).map_err(|e| e.to_string())?;
-                times.push(("metrics", nkrr::pipeline::now() - t1));
+                times.push(("metrics", nkrr::gpu::now() - t1));
                 Ok(m)
             });
             match &result {
@@ -563,7 +563,7 @@ fn eval(args: &[String]) -> Result<(), Failure> {
                     m.fscore,
                     m.nc,
                     m.iou.map_or("-".into(), |v| format!("{v:.4}")),
-                    nkrr::pipeline::now() - t0
+                    nkrr::gpu::now() - t0
                 ),
                 Err(e) => eprintln!("{shape}-{size} {method}: failed: {e}"),
             }

@@ -7,9 +7,15 @@
 //!
 //! Shader convention for 1-D work: a kernel launched through [`Gpu::dispatch_linear`] computes
 //! its global index as `gid.x + gid.y * (num_workgroups.x * WG)` where `WG` is its workgroup
-//! size, and returns early when the index is past the end. See `shaders/linear_index.wgsl`.
+//! size, and returns early when the index is past the end (`shaders/marching_cubes.wgsl` states it too).
+//!
+//! Also here, so every stage does them one way: [`specialise`] (sizes pasted into WGSL
+//! templates), [`to_u32`] (the 32-bit index check), and [`now`] (the clock stages time
+//! themselves with, in [`clock`]).
 
-pub mod matmul;
+pub mod clock;
+
+pub use clock::now;
 
 use std::fmt;
 use std::future::Future;
@@ -316,6 +322,22 @@ impl Gpu {
             let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
         }
     }
+}
+
+/// `v` as a `u32` (kernels index with 32 bits), or an error naming `what`.
+pub fn to_u32(what: &str, v: usize) -> Result<u32, GpuError> {
+    u32::try_from(v).map_err(|_| GpuError::TooLarge(format!("{what}: {v} does not fit 32 bits")))
+}
+
+/// WGSL template substitution: replaces every `{{KEY}}` placeholder of `source` by its value
+/// (WGSL private arrays need constant sizes, so sizes known only at run time are pasted in).
+pub fn specialise(source: &str, vars: &[(&str, usize)]) -> String {
+    let mut s = source.to_string();
+    for (k, v) in vars {
+        s = s.replace(&format!("{{{{{k}}}}}"), &v.to_string());
+    }
+    debug_assert!(!s.contains("{{"), "unreplaced placeholder");
+    s
 }
 
 /// Workgroup counts for `groups` groups with at most `max_per_dim` in one dimension.

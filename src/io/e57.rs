@@ -9,7 +9,9 @@
 
 use std::io::Cursor;
 
-use super::scan::{u64_at, CloudBuilder, ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
+use super::builder::CloudBuilder;
+use super::bytes::u64_at;
+use super::scan_file::{ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
 
 /// Points an E57 file may declare per byte of file (as for LAZ: two orders of magnitude above

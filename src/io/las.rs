@@ -12,7 +12,9 @@
 
 use std::io::{Cursor, Seek, SeekFrom};
 
-use super::scan::{u16_at, u32_at, u64_at, CloudBuilder, ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
+use super::builder::CloudBuilder;
+use super::bytes::{u16_at, u32_at, u64_at};
+use super::scan_file::{ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
 
 /// Points decoded at a time: bounds the record buffer whatever the file declares.

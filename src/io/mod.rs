@@ -1,6 +1,8 @@
 //! Reading clouds and meshes, writing meshes. Every reader returns a `Result` whose error says
 //! what is wrong and where; none of them panics or allocates more than the input can justify.
 
+mod builder;
+mod bytes;
 pub mod gltf;
 pub mod mesh_out;
 #[cfg(all(feature = "read-glb", not(target_arch = "wasm32")))]
@@ -10,8 +12,8 @@ pub mod las;
 pub mod obj;
 pub mod ply;
 pub mod scan;
-mod summary;
+mod scan_file;
 pub mod text;
 
 pub use scan::{read_cloud, ScanError, ScanFile, ScanFormat};
-pub use summary::FEW_POINTS;
+pub use scan_file::FEW_POINTS;

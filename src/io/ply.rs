@@ -34,7 +34,7 @@
 //! it must not reach the reconstruction either. If every vertex is dropped the cloud is useless
 //! and that is an error ([`PlyError::AllNonFinite`]).
 
-use super::scan::CloudBuilder;
+use super::builder::CloudBuilder;
 use crate::cloud::PointCloud;
 use std::fmt;
 
@@ -199,6 +199,54 @@ pub struct PlyInfo {
 pub struct PlyCloud {
     pub cloud: PointCloud,
     pub info: PlyInfo,
+}
+
+/// Vertex properties the pipeline reads; everything else is reported as ignored.
+const USED: [&str; 10] = ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha"];
+
+impl PlyCloud {
+    /// "binary_little_endian; x y z: float; normals; colours" — format, coordinate type, and
+    /// which optional attributes are present.
+    pub fn describe_layout(&self) -> String {
+        let props = &self.info.vertex_properties;
+        let ty = |n: &str| props.iter().find(|p| p.name == n).map(|p| p.kind.to_string());
+        let mut parts = vec![self.info.format.to_string()];
+        let (tx, ty_, tz) = (ty("x"), ty("y"), ty("z"));
+        if tx == ty_ && ty_ == tz {
+            parts.push(format!("x y z: {}", tx.unwrap_or_default()));
+        } else {
+            parts.push(format!(
+                "x: {}, y: {}, z: {}",
+                tx.unwrap_or_default(),
+                ty_.unwrap_or_default(),
+                tz.unwrap_or_default()
+            ));
+        }
+        if self.cloud.normals.is_some() {
+            parts.push("normals (not needed, ignored by the reconstruction)".into());
+        }
+        if self.cloud.colors.is_some() {
+            parts.push("colours".into());
+        }
+        parts.join("; ")
+    }
+
+    /// What the file holds that the pipeline does not use.
+    pub fn format_notes(&self) -> Vec<String> {
+        let mut w = Vec::new();
+        let ignored: Vec<&PlyProperty> =
+            self.info.vertex_properties.iter().filter(|p| !USED.contains(&p.name.as_str())).collect();
+        if !ignored.is_empty() {
+            let names: Vec<&str> = ignored.iter().map(|p| p.name.as_str()).collect();
+            w.push(format!("ignored vertex properties: {}", names.join(", ")));
+        }
+        if !self.info.other_elements.is_empty() {
+            let els: Vec<String> =
+                self.info.other_elements.iter().map(|(name, count)| format!("{name} ({count})")).collect();
+            w.push(format!("skipped elements: {}", els.join(", ")));
+        }
+        w
+    }
 }
 
 /// Where in the body an error happened: a byte offset (binary) or a 1-based line (ascii).

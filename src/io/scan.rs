@@ -1,8 +1,10 @@
-//! Any scan file in, one [`PointCloud`] out: PLY, XYZ/PTS/CSV text, LAS/LAZ and E57, told apart
-//! by their content (a file's name only breaks ties and feeds a warning when it disagrees).
+//! Any scan file in, one [`PointCloud`](crate::cloud::PointCloud) out: PLY, XYZ/PTS/CSV text,
+//! LAS/LAZ and E57, told apart by their content (a file's name only breaks ties and feeds a
+//! warning when it disagrees).
 //!
-//! Each format has its own reader module; this one detects, dispatches, and describes the
-//! result the same way whatever the format, so `nkrr info` and the page say the same things.
+//! Each format has its own reader module; this one detects and dispatches. What every reader
+//! returns (and how it is described, the same way whatever the format, so `nkrr info` and the
+//! page say the same things) is in `scan_file.rs`, below the readers.
 //! Every reader follows the PLY reader's discipline: an error says what is wrong and where, no
 //! input makes it panic, and nothing is allocated for a declared count before that count has
 //! been checked against the bytes that could hold it.
@@ -11,78 +13,7 @@ use std::fmt;
 
 use super::ply::{self, PlyError};
 use super::{e57, las, text};
-use crate::cloud::PointCloud;
-
-/// The formats nkrr reads.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ScanFormat {
-    Ply,
-    /// One point per line: x y z, optionally intensity, colour and normals (XYZ, PTS, CSV, TXT).
-    Text,
-    /// ASPRS LAS 1.0–1.4, compressed (LAZ) or not: the header says which.
-    Las,
-    E57,
-}
-
-impl ScanFormat {
-    pub fn name(self) -> &'static str {
-        match self {
-            ScanFormat::Ply => "PLY",
-            ScanFormat::Text => "text (XYZ/PTS/CSV)",
-            ScanFormat::Las => "LAS/LAZ",
-            ScanFormat::E57 => "E57",
-        }
-    }
-
-    /// The format a file name's extension suggests, if any.
-    pub fn from_name(name: &str) -> Option<ScanFormat> {
-        let ext = name.rsplit_once('.')?.1.to_ascii_lowercase();
-        Some(match ext.as_str() {
-            "ply" => ScanFormat::Ply,
-            "xyz" | "pts" | "csv" | "txt" | "asc" | "xyzrgb" | "xyzn" => ScanFormat::Text,
-            "las" | "laz" => ScanFormat::Las,
-            "e57" => ScanFormat::E57,
-            _ => return None,
-        })
-    }
-}
-
-impl fmt::Display for ScanFormat {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// The file extensions the readers accept, for file pickers (`accept=`) and usage texts.
-pub const EXTENSIONS: [&str; 10] = ["ply", "xyz", "pts", "csv", "txt", "asc", "xyzrgb", "las", "laz", "e57"];
-
-/// The most points a compressed file (LAZ, E57) may declare. Their counts are not bounded by
-/// the file's size (a run of equal points compresses to almost nothing), so this is what keeps
-/// a small hostile file from asking for gigabytes: 200M points are 2.4 GB of positions.
-pub const MAX_COMPRESSED_POINTS: u64 = 200_000_000;
-
-/// A cloud and what its file said about it, in the same terms for every format.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ScanFile {
-    pub format: ScanFormat,
-    pub cloud: PointCloud,
-    /// How many points the file holds (declared, or counted for text); the cloud holds this
-    /// minus `dropped_non_finite` (and, for E57, minus points marked invalid).
-    pub declared: u64,
-    pub dropped_non_finite: u64,
-    /// Format, coordinate encoding, and attributes, in one line: "LAS 1.4, point format 7
-    /// (LAZ-compressed); scale 0.001 0.001 0.001, offset …; colours (16-bit)".
-    pub layout: String,
-    /// Comments and metadata worth showing (PLY comments, LAS system/software, E57 scan names).
-    pub comments: Vec<String>,
-    /// Format-specific warnings (ignored properties, skipped elements, invalid points, a
-    /// name that disagrees with the content).
-    pub notes: Vec<String>,
-    /// The units the file itself states, when it does (E57 is in metres by definition).
-    pub stated_units: Option<crate::units::Units>,
-    /// The whole parsed PLY, when the file was one (its header details for `nkrr info`).
-    pub ply: Option<ply::PlyInfo>,
-}
+pub use super::scan_file::{ScanFile, ScanFormat, EXTENSIONS, MAX_COMPRESSED_POINTS};
 
 /// Why a file could not be read as a cloud.
 #[derive(Clone, Debug, PartialEq)]
@@ -179,124 +110,5 @@ fn from_ply(parsed: ply::PlyCloud) -> ScanFile {
         stated_units: None,
         cloud: parsed.cloud,
         ply: Some(parsed.info),
-    }
-}
-
-/// Little-endian integers at byte `at` of a binary header (the caller has checked the length),
-/// widened to u64.
-pub(crate) fn u16_at(b: &[u8], at: usize) -> u64 {
-    u16::from_le_bytes([b[at], b[at + 1]]) as u64
-}
-pub(crate) fn u32_at(b: &[u8], at: usize) -> u64 {
-    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]) as u64
-}
-pub(crate) fn u64_at(b: &[u8], at: usize) -> u64 {
-    let mut v = [0; 8];
-    v.copy_from_slice(&b[at..at + 8]);
-    u64::from_le_bytes(v)
-}
-
-/// Builds a cloud from `f64` points, as every reader does: the origin is chosen at the first
-/// finite point (see [`crate::cloud::origin_for`]) unless recentring is off, points with a
-/// non-finite coordinate are counted and dropped, and attributes stay aligned with the kept
-/// points.
-pub(crate) struct CloudBuilder {
-    positions: Vec<[f32; 3]>,
-    normals: Option<Vec<[f32; 3]>>,
-    colors: Option<Vec<[u8; 4]>>,
-    origin: Option<[f64; 3]>,
-    pub dropped: u64,
-}
-
-impl CloudBuilder {
-    /// `recentre`: choose an origin for far-off points (off for coordinates an `f32` already
-    /// holds exactly, such as PLY `float`s).
-    pub fn new(normals: bool, colors: bool, recentre: bool) -> Self {
-        CloudBuilder {
-            positions: Vec::new(),
-            normals: normals.then(Vec::new),
-            colors: colors.then(Vec::new),
-            origin: (!recentre).then_some([0.0; 3]),
-            dropped: 0,
-        }
-    }
-
-    /// Reserves room for `n` more points; callers pass a count already bounded by the input.
-    pub fn reserve(&mut self, n: usize) {
-        self.positions.reserve(n);
-        if let Some(v) = &mut self.normals {
-            v.reserve(n);
-        }
-        if let Some(v) = &mut self.colors {
-            v.reserve(n);
-        }
-    }
-
-    #[inline]
-    pub fn push(&mut self, p: [f64; 3], normal: [f32; 3], color: [u8; 4]) {
-        if !p.iter().all(|c| c.is_finite()) {
-            self.dropped += 1;
-            return;
-        }
-        let o = *self.origin.get_or_insert_with(|| crate::cloud::origin_for(p));
-        let pos = [(p[0] - o[0]) as f32, (p[1] - o[1]) as f32, (p[2] - o[2]) as f32];
-        if !pos.iter().all(|c| c.is_finite()) {
-            self.dropped += 1;
-            return;
-        }
-        self.positions.push(pos);
-        if let Some(v) = &mut self.normals {
-            v.push(normal);
-        }
-        if let Some(v) = &mut self.colors {
-            v.push(color);
-        }
-    }
-
-    pub fn len(&self) -> usize {
-        self.positions.len()
-    }
-
-    pub fn finish(self) -> PointCloud {
-        PointCloud {
-            positions: self.positions,
-            origin: self.origin.unwrap_or([0.0; 3]),
-            normals: self.normals,
-            colors: self.colors,
-        }
-    }
-}
-
-impl ScanFile {
-    /// The points with an all-zero normal (zero when the cloud has no normals): such normals
-    /// carry no information.
-    pub fn zero_normals(&self) -> usize {
-        let normals = self.cloud.normals.as_deref().unwrap_or_default();
-        normals.iter().filter(|v| v.iter().all(|c| *c == 0.0)).count()
-    }
-
-    /// What the cloud's size, or the file's own statement, suggests about its units.
-    pub fn units_guess(&self) -> crate::units::UnitsGuess {
-        let longest = self.cloud.bounds().map_or(0.0, |b| b.longest_side() as f64);
-        crate::units::guess(longest, self.stated_units)
-    }
-
-    /// Things the user should know before reconstructing, one sentence each.
-    pub fn warnings(&self) -> Vec<String> {
-        let mut w = Vec::new();
-        let n = self.cloud.len();
-        if self.dropped_non_finite > 0 {
-            w.push(format!(
-                "{} of {} points had NaN or infinite coordinates and were dropped",
-                self.dropped_non_finite, self.declared
-            ));
-        }
-        w.extend(super::summary::cloud_warnings(&self.cloud));
-        let zeros = self.zero_normals();
-        if zeros > 0 && n > 0 {
-            w.push(format!("{zeros} of {n} points have a zero normal (normals are not needed: nkrr ignores them)"));
-        }
-        w.extend(self.notes.iter().cloned());
-        w
     }
 }

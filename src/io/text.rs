@@ -11,7 +11,8 @@
 
 use std::fmt;
 
-use super::scan::{CloudBuilder, ScanFile, ScanFormat};
+use super::builder::CloudBuilder;
+use super::scan_file::{ScanFile, ScanFormat};
 
 /// Why a text cloud could not be read; `line` is 1-based (0 when it is about the whole file).
 #[derive(Clone, Debug, PartialEq, Eq)]

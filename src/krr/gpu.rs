@@ -70,7 +70,7 @@ use super::linalg::{self, dot};
 use super::error::KrrError;
 use super::mm::{kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmParts};
 use super::problem::{Eval, Grad, Objective, Params, Problem, Ridge};
-use crate::gpu::{Gpu, GpuError};
+use crate::gpu::{now as now_s, specialise, to_u32, Gpu, GpuError};
 
 const KERNEL_WGSL: &str = include_str!("../../shaders/krr_kernel_block.wgsl");
 const GRAM_WGSL: &str = include_str!("../../shaders/krr_gram.wgsl");
@@ -248,38 +248,8 @@ impl PhaseTimings {
     }
 }
 
-/// Seconds on a monotonic clock (performance.now() in the browser, where `Instant` panics).
-#[cfg(not(target_arch = "wasm32"))]
-fn now_s() -> f64 {
-    use std::sync::OnceLock;
-    use std::time::Instant;
-    static START: OnceLock<Instant> = OnceLock::new();
-    START.get_or_init(Instant::now).elapsed().as_secs_f64()
-}
-
-#[cfg(target_arch = "wasm32")]
-fn now_s() -> f64 {
-    web_sys::window().and_then(|w| w.performance()).map(|p| p.now()).unwrap_or_else(js_sys::Date::now) / 1e3
-}
-
 // ---------------------------------------------------------------------------------------------
 // pipelines
-
-/// Substitutes `{{KEY}}` placeholders.
-fn specialise(source: &str, vars: &[(&str, usize)]) -> String {
-    let mut s = source.to_string();
-    for (k, v) in vars {
-        s = s.replace(&format!("{{{{{k}}}}}"), &v.to_string());
-    }
-    debug_assert!(!s.contains("{{"), "unreplaced placeholder");
-    s
-}
-
-
-
-fn to_u32(what: &str, v: usize) -> Result<u32, GpuError> {
-    u32::try_from(v).map_err(|_| GpuError::TooLarge(format!("{what}: {v} does not fit 32 bits")))
-}
 
 fn check_d(d: usize) -> Result<(), KrrError> {
     if d == 0 {
@@ -430,23 +400,37 @@ impl GpuPredictor {
         let o_buf = g.storage::<f32>("krr predict out", 2 * chunk)?;
         let mut out = Vec::with_capacity(nq);
         let scope = g.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let dims_of = |rows: usize, j_begin: usize| -> Result<PredictDims, GpuError> {
+            Ok(PredictDims {
+                q: to_u32("queries", rows)?,
+                j_begin: j_begin as u32,
+                j_end: to_u32("m", (j_begin + PREDICT_SEGMENT).min(m))?,
+                first: (j_begin == 0) as u32,
+                one: 1.0,
+                _pad: [0; 3],
+            })
+        };
+        // One uniform and bind group per segment of inducing points, built once per call and
+        // reused by every chunk; only a shorter last chunk rewrites the query count (queue
+        // writes are ordered after the earlier chunks' submissions).
+        let mut segments = Vec::new();
+        for j_begin in (0..m).step_by(PREDICT_SEGMENT) {
+            let dims = g.uniform("krr predict dims", &dims_of(chunk, j_begin)?);
+            let bg = g.bind_at(&self.pipe, &[(0, &q_buf), (1, &z_buf), (2, &s_buf), (3, &b_buf), (4, &o_buf), (5, &dims)]);
+            segments.push((j_begin, dims, bg));
+        }
         for q0 in (0..nq).step_by(chunk) {
             let rows = chunk.min(nq - q0);
             g.queue.write_buffer(&q_buf, 0, bytemuck::cast_slice(&queries[q0 * d..(q0 + rows) * d]));
+            if rows != chunk {
+                for (j_begin, dims, _) in &segments {
+                    g.queue.write_buffer(dims, 0, bytemuck::bytes_of(&dims_of(rows, *j_begin)?));
+                }
+            }
             let groups = g.dispatch_linear(rows as u64, TILE as u32)?;
             let mut enc = g.device.create_command_encoder(&Default::default());
-            for j_begin in (0..m).step_by(PREDICT_SEGMENT) {
-                let dims = PredictDims {
-                    q: to_u32("queries", rows)?,
-                    j_begin: j_begin as u32,
-                    j_end: to_u32("m", (j_begin + PREDICT_SEGMENT).min(m))?,
-                    first: (j_begin == 0) as u32,
-                    one: 1.0,
-                    _pad: [0; 3],
-                };
-                let dims = g.uniform("krr predict dims", &dims);
-                let bg = g.bind_at(&self.pipe, &[(0, &q_buf), (1, &z_buf), (2, &s_buf), (3, &b_buf), (4, &o_buf), (5, &dims)]);
-                g.encode_pass(&mut enc, &self.pipe, &bg, groups);
+            for (_, _, bg) in &segments {
+                g.encode_pass(&mut enc, &self.pipe, bg, groups);
             }
             g.queue.submit([enc.finish()]);
             let hl = g.read::<f32>(&o_buf, 2 * rows).await?;

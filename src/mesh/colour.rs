@@ -1,7 +1,7 @@
 //! Vertex colours from a coloured cloud: each vertex takes the inverse-distance-weighted mean
 //! colour of its nearest input points.
 
-use super::Mesh;
+use super::types::Mesh;
 use crate::cloud::PointCloud;
 use crate::sample::PointIndex;
 

@@ -1,7 +1,7 @@
 //! Connected components of a mesh (triangles sharing a vertex are connected), and removal of the
 //! small ones.
 
-use super::Mesh;
+use super::types::Mesh;
 
 fn find(parent: &mut [u32], mut x: u32) -> u32 {
     while parent[x as usize] != x {

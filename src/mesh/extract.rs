@@ -11,7 +11,7 @@ use super::components::{remove_small_components, Removal};
 use super::marching_cubes::polygonize;
 use super::marching_cubes_gpu::MarchingCubesGpu;
 use super::refine::{ActiveCells, ExtractError, ExtractOptions, Field, FieldError, RefineStats, Refiner};
-use super::Mesh;
+use super::types::Mesh;
 use crate::gpu::Gpu;
 
 /// The extracted mesh and what it took.

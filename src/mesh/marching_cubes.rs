@@ -11,7 +11,7 @@
 
 use super::refine::{ActiveCells, KeyMap};
 use super::tables::{edge_axis, edge_corners, CaseTable};
-use super::Mesh;
+use super::types::Mesh;
 
 /// Marching cubes case index of 8 corner values: bit `c` set when corner `c` is inside (`> 0`).
 pub fn case_index(v: &[f32; 8]) -> usize {

@@ -11,11 +11,23 @@
 use super::marching_cubes::weld;
 use super::refine::ActiveCells;
 use super::tables::CaseTable;
-use super::Mesh;
+use super::types::Mesh;
 use crate::gpu::{Gpu, GpuError};
 
 const SHADER: &str = include_str!("../../shaders/marching_cubes.wgsl");
 const WG: u32 = 64;
+
+/// Binding indices of `shaders/marching_cubes.wgsl` (its `@group(0) @binding(N)` declarations;
+/// keep the two in step).
+mod at {
+    pub const PARAMS: u32 = 0;
+    pub const VALUES: u32 = 1;
+    pub const TABLE: u32 = 2;
+    pub const CLASSES: u32 = 3;
+    pub const CELLS: u32 = 4;
+    pub const OFFSETS: u32 = 5;
+    pub const SOUP: u32 = 6;
+}
 
 /// The largest resolution the GPU kernels take: edge keys `3 (R+1)³` must fit 32 bits.
 pub const GPU_MAX_RESOLUTION: u32 = 1124;
@@ -85,7 +97,10 @@ impl MarchingCubesGpu {
             let groups = gpu.dispatch_linear(n as u64, WG)?;
 
             let mut encoder = gpu.device.create_command_encoder(&Default::default());
-            let bg = gpu.bind(&self.classify, &[&params, &values, &self.table, &classes]);
+            let bg = gpu.bind_at(
+                &self.classify,
+                &[(at::PARAMS, &params), (at::VALUES, &values), (at::TABLE, &self.table), (at::CLASSES, &classes)],
+            );
             gpu.encode_pass(&mut encoder, &self.classify, &bg, groups);
             gpu.queue.submit([encoder.finish()]);
             let counts: Vec<u32> = gpu.read(&classes, n).await?;
@@ -101,7 +116,18 @@ impl MarchingCubesGpu {
                 let soup = gpu.storage::<u32>("marching_cubes.soup", words)?;
                 let offsets = gpu.upload("marching_cubes.offsets", &offsets);
                 let mut encoder = gpu.device.create_command_encoder(&Default::default());
-                let bg = gpu.bind(&self.emit, &[&params, &values, &self.table, &classes, &coords, &offsets, &soup]);
+                let bg = gpu.bind_at(
+                    &self.emit,
+                    &[
+                        (at::PARAMS, &params),
+                        (at::VALUES, &values),
+                        (at::TABLE, &self.table),
+                        (at::CLASSES, &classes),
+                        (at::CELLS, &coords),
+                        (at::OFFSETS, &offsets),
+                        (at::SOUP, &soup),
+                    ],
+                );
                 gpu.encode_pass(&mut encoder, &self.emit, &bg, groups);
                 gpu.queue.submit([encoder.finish()]);
                 let out: Vec<u32> = gpu.read(&soup, words).await?;

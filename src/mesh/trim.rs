@@ -2,7 +2,7 @@
 //! occupancy field is always closed, so a scan of one side of an object comes back with a
 //! bubble over the unscanned side. Trimming drops the triangles far from every input point.
 
-use super::Mesh;
+use super::types::Mesh;
 use crate::sample::{mean_spacing, PointIndex};
 
 /// Default trim factor (multiples of the cloud's mean nearest-neighbour spacing), used by the

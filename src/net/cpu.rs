@@ -9,7 +9,8 @@
 //! to a few ulps); the geometry (plane coordinates, cells, bilinear weights) follows
 //! the contract operation by operation, because there rounding decides which cell a point is in.
 
-use super::{plane_uv, Cells, Planes, Weights, ENCODER_BLOCKS};
+use super::geometry::{plane_uv, Cells, Planes};
+use super::weights::{Weights, ENCODER_BLOCKS};
 
 /// `y = W x + b` for a PyTorch Linear (`W` is `[out, in]`), `b` optional.
 fn linear(w: &[f32], b: Option<&[f32]>, x: &[f32], out: usize) -> Vec<f32> {

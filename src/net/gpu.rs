@@ -29,12 +29,49 @@
 
 use std::collections::BTreeMap;
 
-use super::{Cells, NetConfig, Planes, Weights, ENCODER_BLOCKS, UV_MAX};
-use crate::gpu::{Gpu, GpuError};
+use super::geometry::{Cells, Planes, UV_MAX};
+use super::weights::{NetConfig, Weights, ENCODER_BLOCKS};
+use crate::gpu::{specialise, to_u32, Gpu, GpuError};
 
 const POINTNET_WGSL: &str = include_str!("../../shaders/net_pointnet.wgsl");
 const CONV2D_WGSL: &str = include_str!("../../shaders/net_conv2d.wgsl");
 const DECODER_WGSL: &str = include_str!("../../shaders/net_decoder.wgsl");
+
+/// Binding indices of `shaders/net_pointnet.wgsl` (its `@group(0) @binding(N)` declarations;
+/// keep the two in step).
+mod pointnet_at {
+    pub const PRM: u32 = 0;
+    pub const W: u32 = 1;
+    pub const POINTS: u32 = 2;
+    pub const NET: u32 = 3;
+    pub const CELL_OF: u32 = 4;
+    pub const CELL_START: u32 = 5;
+    pub const CELL_PTS: u32 = 6;
+    pub const CELL_MAX: u32 = 7;
+    pub const CFEAT: u32 = 8;
+    pub const CELL_DST: u32 = 9;
+    pub const PLANES: u32 = 10;
+}
+
+/// Binding indices of `shaders/net_conv2d.wgsl` (its `@group(0) @binding(N)` declarations).
+mod conv2d_at {
+    pub const PRM: u32 = 0;
+    pub const IN_A: u32 = 1;
+    pub const IN_B: u32 = 2;
+    pub const WV: u32 = 3;
+    pub const OUT: u32 = 4;
+    pub const OUT4: u32 = 5;
+}
+
+/// Binding indices of `shaders/net_decoder.wgsl` (its `@group(0) @binding(N)` declarations).
+mod decoder_at {
+    pub const PRM: u32 = 0;
+    pub const W: u32 = 1;
+    pub const PLANES: u32 = 2;
+    pub const QUERIES: u32 = 3;
+    pub const FEATURES: u32 = 4;
+    pub const LOGITS: u32 = 5;
+}
 
 /// Workgroup size of every kernel here.
 const WG: u32 = 64;
@@ -152,20 +189,6 @@ pub struct GpuNet {
     chunk: usize,
 }
 
-/// A second handle on the same device (wgpu handles are reference-counted).
-fn share(gpu: &Gpu) -> Gpu {
-    Gpu {
-        adapter: gpu.adapter.clone(),
-        device: gpu.device.clone(),
-        queue: gpu.queue.clone(),
-        info: gpu.info.clone(),
-        limits: gpu.limits.clone(),
-    }
-}
-
-fn to_u32(what: &str, v: usize) -> Result<u32, GpuError> {
-    u32::try_from(v).map_err(|_| GpuError::TooLarge(format!("{what}: {v} does not fit 32 bits")))
-}
 
 /// Output channels one U-Net invocation computes (4 vec4 accumulators).
 const CONV_BLOCK: usize = 16;
@@ -319,17 +342,6 @@ fn pack_unet(w: &Weights) -> (Vec<[f32; 4]>, BTreeMap<String, Slot>) {
     (v, slots)
 }
 
-
-/// Substitutes `{{KEY}}` placeholders.
-fn specialise(source: &str, vars: &[(&str, usize)]) -> String {
-    let mut s = source.to_string();
-    for (k, v) in vars {
-        s = s.replace(&format!("{{{{{k}}}}}"), &v.to_string());
-    }
-    debug_assert!(!s.contains("{{"), "unreplaced placeholder");
-    s
-}
-
 impl GpuNet {
     /// Uploads `weights` (repacked for the kernels) and builds the kernels for its sizes.
     pub async fn new(gpu: &Gpu, weights: &Weights) -> Result<GpuNet, GpuError> {
@@ -375,7 +387,8 @@ impl GpuNet {
             return Err(GpuError::Kernel(format!("building the network kernels: {e}")));
         }
         let mut net = GpuNet {
-            gpu: share(gpu),
+            // A second handle on the same device (wgpu handles are reference-counted).
+            gpu: gpu.clone(),
             config: cfg,
             enc_w,
             enc_slots,
@@ -419,19 +432,6 @@ impl GpuNet {
         *self.unet_slots.get(name).unwrap_or_else(|| panic!("{name} was packed at load"))
     }
 
-    /// A bind group for `pipeline` with buffers at explicit binding indices.
-    fn bind(&self, pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry> = entries
-            .iter()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: *i, resource: b.as_entire_binding() })
-            .collect();
-        self.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: None,
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        })
-    }
-
     /// Records one dispatch of `pipeline` over `n` invocations.
     fn pass(
         &self,
@@ -441,7 +441,7 @@ impl GpuNet {
         n: u64,
     ) -> Result<(), GpuError> {
         let groups = self.gpu.dispatch_linear(n, WG)?;
-        let bg = self.bind(pipeline, entries);
+        let bg = self.gpu.bind_at(pipeline, entries);
         self.gpu.encode_pass(enc, pipeline, &bg, groups);
         Ok(())
     }
@@ -520,25 +520,51 @@ impl GpuNet {
 
         let mut enc = g.device.create_command_encoder(&Default::default());
         let p = &self.pipes;
-        self.pass(&mut enc, &p.enc_first, &[(0, &first), (1, &self.enc_w), (2, &pts_buf), (3, &net)], n as u64)?;
+        use pointnet_at as at;
+        self.pass(
+            &mut enc,
+            &p.enc_first,
+            &[(at::PRM, &first), (at::W, &self.enc_w), (at::POINTS, &pts_buf), (at::NET, &net)],
+            n as u64,
+        )?;
         for u in &blocks {
             self.pass(
                 &mut enc,
                 &p.enc_cellmax,
-                &[(0, &cellmax), (3, &net), (5, &cell_start), (6, &cell_pts), (7, &cell_max)],
+                &[
+                    (at::PRM, &cellmax),
+                    (at::NET, &net),
+                    (at::CELL_START, &cell_start),
+                    (at::CELL_PTS, &cell_pts),
+                    (at::CELL_MAX, &cell_max),
+                ],
                 (k * hb) as u64,
             )?;
             self.pass(
                 &mut enc,
                 &p.enc_block,
-                &[(0, u), (1, &self.enc_w), (3, &net), (4, &cell_of), (7, &cell_max), (8, &cfeat)],
+                &[
+                    (at::PRM, u),
+                    (at::W, &self.enc_w),
+                    (at::NET, &net),
+                    (at::CELL_OF, &cell_of),
+                    (at::CELL_MAX, &cell_max),
+                    (at::CFEAT, &cfeat),
+                ],
                 n as u64,
             )?;
         }
         self.pass(
             &mut enc,
             &p.enc_scatter,
-            &[(0, &scatter), (5, &cell_start), (6, &cell_pts), (8, &cfeat), (9, &cell_dst), (10, &scattered)],
+            &[
+                (at::PRM, &scatter),
+                (at::CELL_START, &cell_start),
+                (at::CELL_PTS, &cell_pts),
+                (at::CFEAT, &cfeat),
+                (at::CELL_DST, &cell_dst),
+                (at::PLANES, &scattered),
+            ],
             (k * cb) as u64,
         )?;
 
@@ -559,7 +585,7 @@ impl GpuNet {
         entries: &[(u32, &wgpu::Buffer)],
     ) -> Result<(), GpuError> {
         let u = self.gpu.uniform("U-Net params", &prm);
-        let mut all = vec![(0, &u)];
+        let mut all = vec![(conv2d_at::PRM, &u)];
         all.extend_from_slice(entries);
         self.pass(enc, pipeline, &all, prm.total as u64)
     }
@@ -593,7 +619,9 @@ impl GpuNet {
             relu: 1,
             _pad: [0; 3],
         };
-        self.layer(enc, &self.pipes.conv3x3, prm, &[(1, a), (2, b.unwrap_or(a)), (3, &self.unet_w), (4, &out)])?;
+        use conv2d_at as at;
+        let entries = [(at::IN_A, a), (at::IN_B, b.unwrap_or(a)), (at::WV, &self.unet_w), (at::OUT, &out)];
+        self.layer(enc, &self.pipes.conv3x3, prm, &entries)?;
         Ok(out)
     }
 
@@ -612,7 +640,7 @@ impl GpuNet {
                 let out = self.buf("maxpool", 3 * c * r * r)?;
                 let total = to_u32("maxpool", 3 * c * r * r)?;
                 let prm = ConvParams { total, r: r as u32, ..Default::default() };
-                self.layer(enc, &self.pipes.maxpool2, prm, &[(1, &x), (4, &out)])?;
+                self.layer(enc, &self.pipes.maxpool2, prm, &[(conv2d_at::IN_A, &x), (conv2d_at::OUT, &out)])?;
                 x = out;
             }
             let y = self.conv3x3(enc, &format!("unet.down.{k}.conv0"), &x, None, c, r)?;
@@ -639,7 +667,8 @@ impl GpuNet {
                 b_off: s.b_off,
                 ..Default::default()
             };
-            self.layer(enc, &self.pipes.upconv2, prm, &[(1, &x), (3, &self.unet_w), (4, &up)])?;
+            let entries = [(conv2d_at::IN_A, &x), (conv2d_at::WV, &self.unet_w), (conv2d_at::OUT, &up)];
+            self.layer(enc, &self.pipes.upconv2, prm, &entries)?;
             let y = self.conv3x3(enc, &format!("{name}.conv0"), &up, Some(&skips[k]), f, r)?;
             x = self.conv3x3(enc, &format!("{name}.conv1"), &y, None, f, r)?;
             c = f;
@@ -658,7 +687,8 @@ impl GpuNet {
             b_off: s.b_off,
             ..Default::default()
         };
-        self.layer(enc, &self.pipes.final1x1, prm, &[(1, &x), (3, &self.unet_w), (5, &out)])?;
+        let entries = [(conv2d_at::IN_A, &x), (conv2d_at::WV, &self.unet_w), (conv2d_at::OUT4, &out)];
+        self.layer(enc, &self.pipes.final1x1, prm, &entries)?;
         Ok(out)
     }
 
@@ -722,9 +752,17 @@ impl GpuNet {
         let f_buf = self.buf("features", c * chunk)?;
         let l_buf = self.buf("logits", chunk)?;
         let params = g.uniform("decode params", &DecParams::default());
-        let bg = self.bind(
+        use decoder_at as at;
+        let bg = g.bind_at(
             &self.pipes.decode,
-            &[(0, &params), (1, &self.dec_w), (2, &planes.buffer), (3, &q_buf), (4, &f_buf), (5, &l_buf)],
+            &[
+                (at::PRM, &params),
+                (at::W, &self.dec_w),
+                (at::PLANES, &planes.buffer),
+                (at::QUERIES, &q_buf),
+                (at::FEATURES, &f_buf),
+                (at::LOGITS, &l_buf),
+            ],
         );
         let mut result = Ok(());
         for part in queries.chunks(chunk) {

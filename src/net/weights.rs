@@ -12,9 +12,32 @@
 //! The shipped prior is compiled in ([`PRIOR`]): the browser build has no file system.
 
 use std::collections::BTreeMap;
+use std::fmt;
 
 use super::json::{self, Json};
-use super::NetError;
+
+/// Why a weights file could not be used.
+#[derive(Clone, Debug, PartialEq)]
+pub enum NetError {
+    /// The safetensors container itself is malformed (header length, JSON, offsets, coverage).
+    Format(String),
+    /// `__metadata__` lacks a size or holds one that is not usable.
+    Metadata(String),
+    /// A tensor is missing, unexpected, or has the wrong dtype, shape or byte range.
+    Tensor { name: String, problem: String },
+}
+
+impl fmt::Display for NetError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            NetError::Format(s) => write!(f, "malformed safetensors file: {s}"),
+            NetError::Metadata(s) => write!(f, "bad network metadata: {s}"),
+            NetError::Tensor { name, problem } => write!(f, "tensor \"{name}\": {problem}"),
+        }
+    }
+}
+
+impl std::error::Error for NetError {}
 
 /// The trained prior, built into the binary (native and wasm).
 pub const PRIOR: &[u8] = include_bytes!("../../assets/prior.safetensors");

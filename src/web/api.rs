@@ -11,10 +11,11 @@ use std::sync::Arc;
 use js_sys::{Array, Float32Array, Function, Object, Reflect, Uint32Array, Uint8Array};
 use wasm_bindgen::prelude::*;
 
-use crate::gpu::Gpu;
+use super::js::set;
+use crate::gpu::{now, Gpu};
 use crate::io::mesh_out::{self, MeshFormat};
 use crate::io::gltf;
-use crate::pipeline::{now, Engine, PipelineError, Reconstruction, Stage};
+use crate::pipeline::{Engine, PipelineError, Reconstruction, Stage};
 use crate::settings::{self, Kind, Settings, Value};
 
 thread_local! {
@@ -405,10 +406,6 @@ pub fn preflight(points: usize, colours: bool, options: JsValue, binding: f64, s
 fn field(o: &JsValue, key: &str) -> Result<Option<JsValue>, JsValue> {
     let v = Reflect::get(o, &JsValue::from_str(key))?;
     Ok((!v.is_undefined() && !v.is_null()).then_some(v))
-}
-
-pub(super) fn set(o: &Object, key: &str, value: impl Into<JsValue>) {
-    let _ = Reflect::set(o, &JsValue::from_str(key), &value.into());
 }
 
 /// A JS `Error` with `name` set, so callers can tell a cancel ("AbortError") from a failure.

@@ -7,7 +7,7 @@ use glam::{Mat4, Vec3};
 use wasm_bindgen::prelude::*;
 use wgpu::util::DeviceExt;
 
-use super::Cloud;
+use super::cloud::Cloud;
 use crate::gpu::Gpu;
 
 const SHADER: &str = include_str!("../../shaders/points.wgsl");
