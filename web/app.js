@@ -1,14 +1,15 @@
-// The page: drop zone and file picker, the cloud summary, the settings, the reconstruction (run
-// in web/worker.js, off this thread), its progress and result, and input forwarding to the Rust
-// viewer. Parsing, drawing and reconstructing happen in the wasm module; this file only touches
-// the DOM and passes messages.
+// The page's wiring: drop zone and file picker, the cloud summary and memory preflight, a run in
+// the reconstruction worker (web/reconstructor.js, web/worker.js) with its progress, share links
+// (opening a cloud from ?cloud=), and input forwarding to the Rust viewer. The settings form is
+// web/settings.js, the result panel web/result.js, the marks and objects tests read
+// web/test-hooks.js. Parsing, drawing and reconstructing happen in the wasm module; the page only
+// touches the DOM and passes messages.
 
 import { Reconstructor } from './reconstructor.js';
-
-const $ = (id) => document.getElementById(id);
-const fmt = new Intl.NumberFormat('en-US');
-const num = (x) => Number(x.toPrecision(5)).toString();
-const secs = (s) => (s < 10 ? s.toFixed(2) : s.toFixed(1)) + ' s';
+import { Settings } from './settings.js';
+import { ResultPanel } from './result.js';
+import { mark, expose } from './test-hooks.js';
+import { $, fmt, num, secs, setItems } from './util.js';
 
 const NO_WEBGPU =
   'This browser has no WebGPU, which nkrr needs to run the reconstruction on your GPU. ' +
@@ -36,12 +37,17 @@ function wasmReady() {
 
 let nk = null;
 let viewer = null;
+/** The settings form (web/settings.js), built from nk.settings_table(). */
+let settings = null;
+/** The result panel (web/result.js). */
+let resultPanel = null;
+/** True once the viewer and the settings are up. */
+let ready = false;
 let frame = 0;
-// The loaded input: its name, the File (cheap to keep: the worker reads it for each run) and the
-// URL it came from, if any.
+// The loaded input: its name, the File (cheap to keep: the worker reads it for each run), the
+// URL it came from (if any), an even subsample of its points (for the live trim), its point
+// count and whether it has colours (for the preflight).
 let input = null;
-// The last result: { name, glb: Uint8Array, stats }.
-let result = null;
 
 function requestRender() {
   if (!viewer || frame) return;
@@ -64,7 +70,9 @@ function fitCanvas() {
   requestRender();
 }
 
-/** Opens a PLY; `source` is its URL when it came from one (then the page can link to it). */
+// ---- Loading a cloud -----------------------------------------------------------------------
+
+/** Opens a cloud file; `source` is its URL when it came from one (then the page can link to it). */
 async function openFile(file, source = null) {
   if (!nk || !viewer) return;
   if (job) cancel('');
@@ -103,14 +111,16 @@ async function openFile(file, source = null) {
   const g = cloud.units_guess;
   $('units-guess').textContent = g.stated ? `${g.units} (${g.reason})` : `${g.units ? `${g.units}?` : 'unknown'} — ${g.reason}`;
   $('units-guess').classList.toggle('warn', g.warn);
-  const ul = $('warnings');
   const warnings = cloud.warnings;
-  if (g.warn) warnings.push(`Units: ${g.reason}. If they are millimetres, choose them under “Units of the cloud”: glTF is in metres.`);
-  ul.replaceChildren(...warnings.map((w) => Object.assign(document.createElement('li'), { textContent: w })));
+  if (g.warn) {
+    const units = settings.byKey.get('units')?.label ?? 'Units';
+    warnings.push(`Units: ${g.reason}. If they are millimetres, choose them under “${units}”: glTF is in metres.`);
+  }
+  setItems($('warnings'), warnings);
   $('cloud-info').hidden = false;
   viewer.set_cloud(cloud); // also removes an earlier mesh
   if (viewer.drawn_points < cloud.count) {
-    ul.append(Object.assign(document.createElement('li'), {
+    $('warnings').append(Object.assign(document.createElement('li'), {
       textContent: `The view shows ${fmt.format(viewer.drawn_points)} of the points (an even subsample).`,
     }));
   }
@@ -124,29 +134,12 @@ async function openFile(file, source = null) {
   cloud.free();
   updatePreflight();
   updateShareLink();
-  setResult(null);
+  resultPanel.set(null);
   $('progress').hidden = true;
   show('');
-  document.body.dataset.loaded = file.name;
+  mark('loaded', file.name);
   updateRunButton();
   requestRender();
-}
-
-// ---- Settings ---------------------------------------------------------------------------
-
-function readOptions() {
-  const method = $('method').value;
-  const o = {
-    method,
-    resolution: Number($('resolution').value),
-    removeSmall: Number($('remove-small').value),
-  };
-  if (method === 'nkrr') {
-    o.m = Number($('m').value);
-    o.steps = Number($('steps').value);
-  }
-  if ($('units').value) o.units = $('units').value;
-  return o;
 }
 
 /** The memory each stage will need on this adapter, for the loaded cloud and the settings. */
@@ -155,36 +148,20 @@ function updatePreflight() {
   if (!input || !nk || !viewer) { ul.replaceChildren(); return; }
   let lines;
   try {
-    lines = nk.preflight(input.count, input.colours, readOptions(), viewer);
+    lines = nk.preflight(input.count, input.colours, settings.readOptions(), viewer);
   } catch (e) {
     lines = [`no estimate: ${e.message ?? e}`];
   }
-  ul.replaceChildren(...lines.map((l) => Object.assign(document.createElement('li'), { textContent: l })));
+  setItems(ul, lines);
   const will = lines.filter((l) => l.startsWith('will '));
   $('preflight-summary').textContent = will.length ? `Memory: ${will.join('; ')}` : 'Memory: fits this GPU';
   $('preflight').classList.toggle('warn', will.length > 0);
   $('preflight').open = will.length > 0;
 }
 
-/** True when WebGPU runs on a software adapter (SwiftShader, lavapipe): no GPU to tune on. */
-let softwareAdapter = false;
-
-function syncMethodFields() {
-  const nkrr = $('method').value === 'nkrr';
-  $('nkrr-fields').disabled = !nkrr;
-  $('nkrr-note').hidden = !(nkrr && softwareAdapter);
-}
-
-// ---- The reconstructor (web/reconstructor.js: a worker with its own GPU device) -------
+// ---- A run -----------------------------------------------------------------------------
 
 const reconstructor = new Reconstructor({ graceMs: CANCEL_GRACE_MS });
-reconstructor.onstatechange = () => {
-  document.body.dataset.workers = String(reconstructor.workersStarted);
-  if (reconstructor.stopping) document.body.dataset.stopping = String(reconstructor.stopping.id);
-  else delete document.body.dataset.stopping;
-};
-
-// ---- A run -----------------------------------------------------------------------------
 
 // Shares of the overall bar per stage, by method. Meshing has no known end: its share fills as
 // field evaluations approach an estimate from the resolution (a closed surface needs ~18 per
@@ -208,7 +185,7 @@ function stageText(p, opts) {
 
 function onProgress(p) {
   const opts = job.options;
-  const share = SHARES[opts.method][p.stage];
+  const share = SHARES[opts.method]?.[p.stage];
   let f = job.fraction;
   if (share) {
     let within = 0;
@@ -222,7 +199,7 @@ function onProgress(p) {
   job.stage = p.stage;
   $('progress-bar').value = job.fraction;
   $('stage').textContent = stageText(p, opts);
-  document.body.dataset.stage = p.stage;
+  mark('stage', p.stage);
 }
 
 function tick() {
@@ -233,33 +210,31 @@ function tick() {
 // ('done', 'cancelled', 'error'). Tests and embedding pages wait on these.
 function setJobState(state) {
   const running = state === 'running';
-  document.body.dataset.job = running ? 'running' : 'idle';
-  if (running) delete document.body.dataset.outcome;
-  else document.body.dataset.outcome = state;
+  mark('job', running ? 'running' : 'idle');
+  mark('outcome', running ? null : state);
   $('run').hidden = running;
   $('cancel').hidden = !running;
   for (const el of $('settings').elements) if (el.id !== 'cancel' && el.id !== 'run') el.disabled = running;
-  if (!running) syncMethodFields();
-  else $('nkrr-fields').disabled = true;
+  if (!running) settings.sync();
   updateRunButton();
 }
 
 function updateRunButton() {
-  $('run').disabled = !input || !!job || document.body.dataset.state !== 'ready';
+  $('run').disabled = !input || !!job || !ready;
 }
 
 let job = null; // { options, started, timer, fraction, stage, abort }
 
 async function run() {
-  if (!input || job) return;
-  const options = readOptions();
+  if (!input || job || !ready) return;
+  const options = settings.readOptions();
   // The download is named after the input, without a cloud extension (the readers' own list).
   const ext = input.name.match(/\.[^.]+$/)?.[0].toLowerCase();
   options.name = (nk.cloud_extensions().includes(ext) ? input.name.slice(0, -ext.length) : input.name) || 'mesh';
   const abort = new AbortController();
   const me = { options, started: performance.now(), fraction: 0, stage: 'setup', timer: setInterval(tick, 100), abort };
   job = me;
-  setResult(null);
+  resultPanel.set(null);
   viewer.clear_mesh();
   requestRender();
   $('progress').hidden = false;
@@ -267,7 +242,7 @@ async function run() {
   $('stage').textContent = 'Preparing the GPU…';
   tick();
   show('');
-  delete document.body.dataset.stage;
+  mark('stage', null);
   setJobState('running');
   let r;
   try {
@@ -319,81 +294,12 @@ function onDone(r) {
   requestRender();
   $('progress-bar').value = 1;
   $('stage').textContent = `Done in ${secs(elapsed)}`;
-  setResult({
+  resultPanel.set({
     name, glb: r.glb, stats: r.stats, elapsed, points: input?.points,
     mesh: { positions: r.positions, normals: r.normals, indices: r.indices, colors: r.colors, translation: r.translation },
   });
   finish('done', notShown ?? '');
   $('result').scrollIntoView({ block: 'nearest' });
-}
-
-function setResult(r) {
-  result = r;
-  $('result').hidden = !r;
-  if (!r) return;
-  const s = r.stats;
-  $('r-vertices').textContent = fmt.format(s.vertices);
-  $('r-triangles').textContent = fmt.format(s.triangles);
-  $('r-watertight').textContent = s.watertight ? 'yes' : 'no';
-  $('r-watertight').className = s.watertight ? 'yes' : 'no';
-  $('r-time').textContent = `${secs(r.elapsed)} (${s.method}, ${s.resolution}³)`;
-  $('r-stages').textContent = s.timings.map((t) => `${t.stage} ${secs(t.seconds)}`).join(' · ');
-  $('r-evals').textContent = `${fmt.format(s.evaluations)} (dense grid: ${fmt.format(s.denseEvaluations)})`;
-  const t = s.tuning;
-  $('r-tuning-label').hidden = $('r-tuning').hidden = !t;
-  if (t) {
-    $('r-tuning').textContent =
-      `n ${fmt.format(t.n)}, m ${t.m}; ${t.stepsRun} steps (${t.stop}), best at ${t.bestStep}; ` +
-      `loss ${t.initialLoss.toPrecision(4)} → ${t.finalLoss.toPrecision(4)}`;
-  }
-  $('r-bytes').textContent = `${r.name}.glb, ${fmt.format(Math.round(s.bytes / 1024))} KiB`;
-  $('r-notices').replaceChildren(...s.notices.map((n) => Object.assign(document.createElement('li'), { textContent: n })));
-  $('download').textContent = `Download ${r.name}.glb`;
-  r.indices = r.mesh.indices; // the triangles shown and downloaded (a subset when trimmed)
-  $('trim').value = '0';
-  applyTrim(true);
-}
-
-/** Applies the trim slider to the result: the view and the downloads follow it. */
-function applyTrim(initial = false) {
-  if (!result) return;
-  const f = Number($('trim').value);
-  $('trim-value').textContent = f > 0 ? `${f} × spacing` : 'off';
-  const m = result.mesh;
-  result.indices = f > 0 && result.points ? nk.trim_indices(result.points, m.positions, m.indices, f) : m.indices;
-  const removed = (m.indices.length - result.indices.length) / 3;
-  document.body.dataset.trimmed = String(removed);
-  $('r-triangles').textContent = removed > 0
-    ? `${fmt.format(result.indices.length / 3)} (${fmt.format(removed)} trimmed; open)`
-    : fmt.format(result.stats.triangles);
-  const closed = removed === 0 && result.stats.watertight;
-  $('r-watertight').textContent = removed > 0 ? 'no (trimmed)' : closed ? 'yes' : 'no';
-  $('r-watertight').className = closed ? 'yes' : 'no';
-  if (initial && f === 0) return; // onDone has just shown the whole mesh
-  try {
-    viewer.set_mesh(m.positions, m.normals, result.indices, m.colors?.length ? m.colors : undefined);
-  } catch (e) {
-    show(e.message ?? String(e), 'error');
-  }
-  requestRender();
-}
-
-function download(format = 'glb') {
-  if (!result) return;
-  let bytes = result.glb;
-  let type = 'model/gltf-binary';
-  const m = result.mesh;
-  if (format !== 'glb' || result.indices !== m.indices) {
-    // Written on demand from the arrays the view holds, so a trimmed mesh downloads trimmed.
-    bytes = nk.mesh_file(format, m.positions, m.normals, m.colors, result.indices, result.name, m.translation);
-    if (format !== 'glb') type = 'application/octet-stream';
-  }
-  const url = URL.createObjectURL(new Blob([bytes], { type }));
-  const a = Object.assign(document.createElement('a'), { href: url, download: `${result.name}.${format}` });
-  document.body.append(a);
-  a.click();
-  a.remove();
-  setTimeout(() => URL.revokeObjectURL(url), 10_000);
 }
 
 function applyVisibility() {
@@ -402,24 +308,11 @@ function applyVisibility() {
   requestRender();
 }
 
-// ---- Share links: ?cloud=URL&method=…&resolution=…&m=…&steps=…&removeSmall=…&units=…&run ----
+// ---- Share links: ?cloud=URL&<setting>=<value>…&run --------------------------------------
+// Every setting's key works (web/settings.js applies and checks them); `run` starts at once.
 
-const SETTING_PARAMS = { method: 'method', resolution: 'resolution', m: 'm', steps: 'steps', removeSmall: 'remove-small', units: 'units' };
-
-/** Applies settings from the query, loads `cloud` from its URL, and runs when `run` is given. */
-async function openFromQuery() {
-  const q = new URLSearchParams(location.search);
-  for (const [param, id] of Object.entries(SETTING_PARAMS)) {
-    const v = q.get(param);
-    if (v === null) continue;
-    const el = $(id);
-    if (el instanceof HTMLSelectElement && ![...el.options].some((o) => o.value === v)) {
-      // A value the menu does not list (say resolution=160) is added, not dropped.
-      el.append(new Option(param === 'resolution' ? `${v}³` : v, v));
-    }
-    el.value = v;
-  }
-  syncMethodFields();
+/** Loads `cloud` from its URL, and runs when `run` is given and the link's settings all fit. */
+async function openFromQuery(q) {
   const url = q.get('cloud');
   if (!url) return;
   let file;
@@ -436,16 +329,20 @@ async function openFromQuery() {
     return;
   }
   await openFile(file, url);
-  if (q.has('run') && input) run();
+  if (!q.has('run') || !input) return;
+  // A link whose settings did not all fit (listed above the form) does not start by itself.
+  if (settings.problems.length) show('The link’s settings did not all fit (see above the settings): not started.', 'error');
+  else run();
 }
 
 /** The link that reopens this cloud with these settings (only for clouds from a URL). */
 function updateShareLink() {
   const a = $('share');
-  if (!input?.source) { a.hidden = true; return; }
+  if (!input?.source || !settings) { a.hidden = true; return; }
   const q = new URLSearchParams({ cloud: input.source });
-  const o = readOptions();
-  for (const k of Object.keys(SETTING_PARAMS)) if (o[k] !== undefined) q.set(k, o[k]);
+  // The method is always written: its default on the page depends on the machine (the network
+  // on a software adapter), and the link should mean the same everywhere.
+  for (const [k, v] of settings.shareParams({ always: ['method'] })) q.set(k, v);
   q.set('run', '');
   a.href = `${location.origin}${location.pathname}?${q.toString().replace(/run=$/, 'run')}`;
   a.hidden = false;
@@ -494,22 +391,35 @@ function wireInput() {
   $('show-wire').addEventListener('change', applyVisibility);
   new ResizeObserver(fitCanvas).observe(canvas);
 
-  $('method').addEventListener('change', syncMethodFields);
   $('settings').addEventListener('change', updateShareLink);
   $('settings').addEventListener('change', updatePreflight);
   $('settings').addEventListener('submit', (e) => { e.preventDefault(); run(); });
   $('cancel').addEventListener('click', () => cancel());
-  $('download').addEventListener('click', () => download('glb'));
-  for (const f of ['ply', 'obj', 'stl']) $(`download-${f}`).addEventListener('click', () => download(f));
-  $('trim').addEventListener('input', () => applyTrim());
-  syncMethodFields();
+}
+
+/** Builds the settings form from the wasm module's table. */
+function buildSettings() {
+  settings = new Settings(nk.settings_table(), $('settings-form'));
 }
 
 async function boot() {
   wireInput();
-  if (!navigator.gpu) { show(NO_WEBGPU, 'error'); document.body.dataset.state = 'no-webgpu'; return; }
+  if (!navigator.gpu) {
+    show(NO_WEBGPU, 'error');
+    mark('state', 'no-webgpu');
+    // The settings still show what a run would use.
+    wasmReady().then((m) => { nk = m; buildSettings(); }).catch((e) => console.warn(`no settings form: ${e.message ?? e}`));
+    return;
+  }
   try {
     nk = await wasmReady();
+    buildSettings();
+  } catch (e) {
+    show(`The page could not start: ${e.message ?? e}`, 'error');
+    mark('state', 'error');
+    return;
+  }
+  try {
     // The file picker offers what the readers accept (the same list as the CLI).
     $('file-input').accept = [...nk.cloud_extensions(), 'application/octet-stream', 'text/plain'].join(',');
     fitCanvas();
@@ -517,29 +427,32 @@ async function boot() {
     $('adapter').textContent = `GPU: ${viewer.adapter}`;
     // The adapter line reads "NAME (DeviceType, Backend, …)". nkrr (the default) tunes on the
     // GPU; on a CPU adapter that would take minutes, so the network alone becomes the default
-    // there (a share link's own method still wins, in openFromQuery).
-    softwareAdapter = /\(Cpu\b/.test(viewer.adapter);
-    document.body.dataset.software = String(softwareAdapter);
-    if (softwareAdapter) $('method').value = 'network';
-    syncMethodFields();
+    // there (a share link's own method still wins: it is applied below).
+    settings.softwareAdapter = /\(Cpu\b/.test(viewer.adapter);
+    mark('software', settings.softwareAdapter);
+    if (settings.softwareAdapter && settings.byKey.has('method')) settings.setFromText('method', 'network');
+    settings.sync();
   } catch (e) {
     show(`${NO_WEBGPU}\n(${e.message ?? e})`, 'error');
-    document.body.dataset.state = 'no-webgpu';
+    mark('state', 'no-webgpu');
     return;
   }
+  resultPanel = new ResultPanel({ nk, viewer, requestRender, onError: (m) => show(m, 'error') });
+  expose({ nk, viewer, reconstructor, settings });
+  // A share link's settings (every key of the table), checked; what does not fit is listed.
+  const query = new URLSearchParams(location.search);
+  settings.applyQuery(query);
   fitCanvas();
-  document.body.dataset.state = 'ready';
-  document.body.dataset.job = 'idle';
+  ready = true;
+  mark('state', 'ready');
+  mark('job', 'idle');
   updateRunButton();
   // The worker loads the module and prepares its engine while the user picks a file.
   reconstructor.prepare().then(
-    () => { document.body.dataset.worker = 'ready'; },
-    (e) => { document.body.dataset.worker = 'error'; console.warn(`the reconstruction worker is not ready: ${e.message}`); },
+    () => mark('worker', 'ready'),
+    (e) => { mark('worker', 'error'); console.warn(`the reconstruction worker is not ready: ${e.message}`); },
   );
-  // Exposed for tests and for embedding pages that want the view.
-  window.nkrrViewer = viewer;
-  window.nkrrReconstructor = reconstructor;
-  openFromQuery();
+  openFromQuery(query);
 }
 
 boot();

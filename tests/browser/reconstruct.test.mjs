@@ -155,7 +155,7 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     // The live trim: the slider drops triangles far from the points without a re-run, and the
     // downloads follow it (OBJ and STL here, written on the page).
     const total = glb.indices.data.length / 3;
-    await page.evaluate(() => { const t = document.getElementById('trim'); t.value = '2'; t.dispatchEvent(new Event('input')); });
+    await page.evaluate(() => { const t = document.getElementById('live-trim'); t.value = '2'; t.dispatchEvent(new Event('input')); });
     const trimmed = Number(await page.evaluate(() => document.body.dataset.trimmed));
     assert.ok(trimmed > 0 && trimmed < total / 2, `trimmed ${trimmed} of ${total}`);
     assert.match(await page.textContent('#r-triangles'), /trimmed; open/);
@@ -166,7 +166,7 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     const [stlDl] = await Promise.all([page.waitForEvent('download'), page.click('#download-stl')]);
     assert.equal(fs.statSync(await stlDl.path()).size, 84 + 50 * (total - trimmed));
     await page.screenshot({ path: path.join(ARTIFACTS, 'reconstruct-spot-3k-trimmed.png') });
-    await page.evaluate(() => { const t = document.getElementById('trim'); t.value = '0'; t.dispatchEvent(new Event('input')); });
+    await page.evaluate(() => { const t = document.getElementById('live-trim'); t.value = '0'; t.dispatchEvent(new Event('input')); });
     assert.equal(await page.evaluate(() => document.body.dataset.trimmed), '0');
 
     const cloud = plyBounds(fs.readFileSync(SCAN));
