@@ -148,7 +148,7 @@ function updatePreflight() {
   if (!input || !nk || !viewer) { ul.replaceChildren(); return; }
   let lines;
   try {
-    lines = nk.preflight(input.count, input.colours, settings.readOptions(), viewer);
+    lines = nk.preflight(input.count, input.colours, settings.readOptions(), viewer.binding_limit, viewer.software);
   } catch (e) {
     lines = [`no estimate: ${e.message ?? e}`];
   }

@@ -69,7 +69,7 @@ use super::kernel;
 use super::linalg::{self, dot};
 use super::error::KrrError;
 use super::mm::{kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmParts};
-use super::problem::{Eval, Grad, Objective, Params, Problem, Ridge};
+use super::problem::{Eval, Grad, Params, Problem, Ridge};
 use crate::gpu::{now as now_s, specialise, to_u32, Gpu, GpuError};
 
 const KERNEL_WGSL: &str = include_str!("../../shaders/krr_kernel_block.wgsl");
@@ -1004,7 +1004,7 @@ impl GpuObjective {
 }
 
 #[cfg(not(target_arch = "wasm32"))]
-impl Objective for GpuObjective {
+impl super::problem::Objective for GpuObjective {
     fn eval_grad(&mut self, params: &Params) -> Result<(Eval, Grad), KrrError> {
         pollster::block_on(self.eval_grad_async(params)).map_err(Into::into)
     }
