@@ -130,6 +130,13 @@ impl From<KrrError> for FitError {
     }
 }
 
+/// Host bytes of [`training_pairs`] for `points` points (two pairs a point) with a network of
+/// `c_dim` features and `d` regression inputs: the extra points and their neighbour search,
+/// the decoded features and logits, and the problem in f64.
+pub fn pairs_host_bytes(points: u64, c_dim: u64, d: u64) -> u64 {
+    2 * points * (4 * c_dim + 8 * d + 20) + 40 * points
+}
+
 /// X = F([P, P~]), y = [0, l(P~)] (paper eq. 6): the input points lie on the surface (logit 0),
 /// the extra points take the network's logit as a pseudo-label, clipped to
 /// [`Settings::label_clip`].

@@ -5,14 +5,18 @@
 //! is its own value ([`MemoryPlan::n`], [`MemoryPlan::m`]): the user's settings are never
 //! rewritten.
 //!
-//! The formulas follow the buffers the stages allocate (features: net/gpu.rs `encode`; pairs:
-//! the chunked decode; tuning: krr/gpu.rs `Workspace`, or the f64 reference's K_nm on the CPU;
-//! meshing: the refine batches, the chunked decode/predict and the tiled marching cubes). The
-//! meshing figures rest on measured refine-batch sizes on a sphere (about 19 R² points in the
-//! largest batch), doubled: an estimate, not a bound. wgpu cannot tell an adapter's total
+//! Each stage states what it allocates, next to the code that allocates it
+//! (`net::gpu::encode_footprint` and `decode_footprint`, `field::pairs_host_bytes`,
+//! `krr::gpu::objective_footprint` and `predict_footprint`, `krr::reference::host_bytes`,
+//! `mesh::refine::MeshingSize`, `mesh::marching_cubes_gpu::footprint`); the plan adds them up per
+//! stage. The meshing figures rest on measured refine-batch sizes on a sphere, doubled: an
+//! estimate, not a bound. wgpu cannot tell an adapter's total
 //! memory, so only the per-buffer limits are checked on the GPU; the totals are reported.
 
-use crate::net::NetConfig;
+use crate::gpu::Footprint;
+use crate::krr::{gpu as krr_gpu, reference};
+use crate::mesh::{marching_cubes_gpu, refine::MeshingSize};
+use crate::net::{gpu as net_gpu, NetConfig};
 use crate::settings::{Method, Settings};
 
 /// What the plan needs to know about the adapter.
@@ -128,70 +132,26 @@ impl MemoryPlan {
     }
 }
 
-/// The network's shape that memory depends on.
-struct Net {
-    c: u64,
-    hb: u64,
-    cb: u64,
-    reso: u64,
-    /// U-Net activations and planes of one encode (bytes).
-    unet: u64,
-}
-
-impl Net {
-    fn of(cfg: &NetConfig) -> Net {
-        let (c, reso) = (cfg.c_dim as u64, cfg.reso as u64);
-        let (hb, cb) = ((cfg.h as u64).div_ceil(4), (cfg.c_dim as u64).div_ceil(4));
-        // As net/gpu.rs `unet` allocates: inputs, per level two convolutions (and a pool
-        // below the top), per upward level an up-convolution and a concatenation, then the
-        // output planes of 4·cb channels.
-        let mut floats = 3 * c * reso * reso;
-        for k in 0..cfg.unet_depth {
-            let r = reso >> k;
-            let f = cfg.filters(k) as u64;
-            if k > 0 {
-                floats += 3 * cfg.filters(k - 1) as u64 * r * r;
-            }
-            floats += 6 * f * r * r;
-            if k + 1 < cfg.unet_depth {
-                floats += 9 * f * r * r;
-            }
-        }
-        floats += 12 * cb * reso * reso;
-        Net { c, hb, cb, reso, unet: 4 * floats }
-    }
-}
-
-/// Queries per decode submission, as [`crate::net::GpuNet`] picks them, for `queries` queries.
-fn decode_chunk(binding: u64, c: u64, queries: u64) -> u64 {
-    let max = crate::net::gpu::max_decode_queries(binding, c as usize).min(crate::net::gpu::MAX_DECODE_CHUNK);
-    (max as u64).min(queries).max(1)
-}
-
 /// The plan for a cloud of `points` points (`colours`: whether it has colours) reconstructed
-/// with `settings` by the network `cfg` on `device`.
+/// with `settings` by the network `cfg` on `device`. Each stage's bytes are what that stage's
+/// module says it allocates; this adds them up and decides what must change to fit.
 pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetConfig, device: &DeviceFacts) -> MemoryPlan {
-    let net = Net::of(cfg);
     let b = device.binding.max(1);
     let nkrr = settings.method == Method::Nkrr;
     let krr_on_gpu = settings.krr_backend.on_gpu(device.software);
+    let c = cfg.c_dim as u64;
     let d = crate::field::input_dim(settings, cfg.c_dim) as u64;
     let mut actions = Vec::new();
 
-    // Points: the encoder's per-point buffers (16·max(hb, cb) bytes a point) and, for nkrr,
-    // the training features X (4·d bytes a pair, two pairs a point) are not tiled.
+    // Points: the encoder's per-point buffers and, for nkrr, the training features X (two
+    // pairs a point) are not tiled.
     let mut n = points.min(settings.max_points).max(1) as u64;
-    let mut n_fit = b / (16 * net.hb.max(net.cb));
+    let mut n_fit = net_gpu::max_encode_points(cfg, b);
     if nkrr {
-        n_fit = n_fit.min(b / (8 * d));
+        n_fit = n_fit.min(krr_gpu::max_pairs(b, d) / 2);
     }
-    // m: the GPU objective's m×m accumulator (12 bytes an entry) is one buffer.
-    let m_fit = ((b / 12) as f64).sqrt() as u64;
+    let m_fit = krr_gpu::max_inducing_points(b);
     let mut m = (settings.m as u64).clamp(1, 2 * n);
-    // The CPU objective's host memory: per point (two pairs), the f64 K_nm row, X twice and
-    // the targets; plus the m×m f64 matrices.
-    let cpu_krr_per_point = |m: u64| 16 * (m + 2 * d + 3) + 16 * (d + 1);
-    let cpu_krr_host = |n: u64, m: u64| n * cpu_krr_per_point(m) + 96 * m * m;
     let nn = points as u64;
     let attrs = 12 * nn + if colours { 4 * nn } else { 0 };
     if n > n_fit {
@@ -206,9 +166,10 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         m = m_fit;
     }
     if let (true, false, Some(budget)) = (nkrr, krr_on_gpu, device.host_budget) {
-        if cpu_krr_host(n, m) > budget {
+        if reference::host_bytes(2 * n, m, d) > budget {
             // The f64 kernel matrix grows with n: find the largest n that fits.
-            let fit = budget.saturating_sub(96 * m * m + attrs) / cpu_krr_per_point(m).max(1);
+            let per_point = 2 * reference::host_bytes_per_pair(m, d);
+            let fit = budget.saturating_sub(96 * m * m + attrs) / per_point.max(1);
             actions.push(format!(
                 "subsample the regression to {fit} points (from {n}): its f64 kernel matrix would exceed the {} host budget",
                 mib(budget)
@@ -217,72 +178,58 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         }
     }
     let np = 2 * n;
+    let planes = Footprint { gpu: net_gpu::planes_bytes(cfg), ..Default::default() };
+    let stage = |name: &'static str, f: Footprint| StagePlan {
+        name,
+        gpu_bytes: f.gpu,
+        largest_binding: f.largest,
+        host_bytes: attrs + f.host,
+    };
 
-    let mut stages = Vec::new();
-    stages.push(StagePlan { name: "load", gpu_bytes: 0, largest_binding: 0, host_bytes: attrs + 12 * nn + 12 * n });
-
-    let k = (3 * n).min(3 * net.reso * net.reso);
-    let point_buf = 16 * net.hb.max(net.cb) * n;
-    stages.push(StagePlan {
-        name: "features",
-        gpu_bytes: (36 + 16 * net.hb + 16 * net.cb) * n + (8 + 16 * net.hb) * k + net.unet,
-        largest_binding: point_buf.max(16 * net.hb * k).max(48 * net.cb * net.reso * net.reso),
-        host_bytes: attrs + 48 * n,
-    });
-    let planes = 48 * net.cb * net.reso * net.reso;
-
+    let mut stages = vec![stage("load", Footprint::host(12 * nn + 12 * n))];
+    stages.push(stage("features", net_gpu::encode_footprint(cfg, n)));
     if nkrr {
-        let cd = decode_chunk(b, net.c, np);
-        stages.push(StagePlan {
-            name: "pairs",
-            gpu_bytes: planes + (20 + 8 * net.c) * cd,
-            largest_binding: 4 * net.c * cd,
-            host_bytes: attrs + np * (4 * net.c + 8 * d + 20) + 40 * n,
-        });
-        let rows = (b / (4 * m)).min(crate::krr::gpu::MAX_BLOCK_ROWS as u64).min(np).max(1);
-        let (gpu, binding, host) = if krr_on_gpu {
-            (
-                planes + 4 * np * (m + d + 4) + 4 * rows * m + 16 * m * m + 48 * m * d,
-                (4 * d * np).max(4 * rows * m).max(12 * m * m),
-                attrs + 8 * np * (d + 1) + 4 * np * (d + 3) + 96 * m * m,
-            )
+        let pairs = Footprint::host(crate::field::pairs_host_bytes(n, c, d));
+        stages.push(stage("pairs", planes.and(net_gpu::decode_footprint(cfg, b, np)).and(pairs)));
+        let tuning = if krr_on_gpu {
+            krr_gpu::objective_footprint(np, m, d, b)
         } else {
-            (planes, 0, attrs + cpu_krr_host(n, m))
+            Footprint::host(reference::host_bytes(np, m, d))
         };
-        stages.push(StagePlan { name: "tuning", gpu_bytes: gpu, largest_binding: binding, host_bytes: host });
+        stages.push(stage("tuning", planes.and(tuning)));
     }
 
-    // Meshing: the refine batches (the first is the coarse grid), their decoded features on
-    // the host, the chunked decode/predict on the GPU, the tiled marching cubes.
-    let r = settings.resolution as u64;
-    let coarse = 33u64.pow(3);
-    let batch = ((r + 1).pow(3)).min(coarse.max(40 * r * r));
-    let evaluated = ((r + 1).pow(3)).min(coarse + 55 * r * r);
-    let active = (r.pow(3)).min(7 * r * r);
-    let triangles = 2 * active;
-    let cd = decode_chunk(b, net.c, batch);
-    let predict = if nkrr { 4 * m * d + (4 * d + 16) * cd } else { 0 };
-    let n_b = active.min(b / 240).max(1);
-    stages.push(StagePlan {
-        name: "meshing",
-        gpu_bytes: planes + ((20 + 8 * net.c) * cd + predict).max(16_384 + 52 * n_b + 96 * n_b),
-        largest_binding: (4 * net.c * cd).max(4 * m * d * u64::from(nkrr)).max(240 * n_b),
+    // Meshing: the refine batches (the first is the coarse grid) and their decoded features on
+    // the host; on the GPU the chunked decode and predict, then the tiled marching cubes.
+    let size = MeshingSize::at(settings.resolution);
+    let decode = net_gpu::decode_footprint(cfg, b, size.batch);
+    let field = if nkrr {
+        let cd = net_gpu::decode_chunk(cfg, b, size.batch);
         // The CPU predictor (nkrr with the f64 objective) widens each batch's features to f64.
-        host_bytes: attrs
-            + batch * (40 + 4 * net.c + if nkrr && !krr_on_gpu { 8 * d + 8 } else { 0 })
-            + 32 * evaluated
-            + 92 * active
-            + 108 * triangles,
-    });
+        let host = if krr_on_gpu { 0 } else { reference::predict_host_bytes(size.batch, d) };
+        krr_gpu::predict_footprint(m, d, cd).and(Footprint::host(host))
+    } else {
+        Footprint::default()
+    };
+    let evaluate = decode.and(field).and(Footprint::host(size.batch * 4 * c + size.host_bytes()));
+    let polygonize = marching_cubes_gpu::footprint(size.active, b);
+    stages.push(stage(
+        "meshing",
+        planes.and(Footprint {
+            gpu: evaluate.gpu.max(polygonize.gpu),
+            largest: evaluate.largest.max(polygonize.largest),
+            host: evaluate.host,
+        }),
+    ));
     if settings.trim.is_some() || (colours && settings.colors) {
-        let mut host = attrs + 12 * triangles + 12 * active;
+        let mut host = 12 * size.triangles + 12 * size.active;
         if settings.trim.is_some() {
             host += 2 * (12 * n + 8 * n);
         }
         if colours && settings.colors {
             host += 24 * nn;
         }
-        stages.push(StagePlan { name: "finish", gpu_bytes: 0, largest_binding: 0, host_bytes: host });
+        stages.push(stage("finish", Footprint::host(host)));
     }
     if let Some(budget) = device.host_budget {
         let peak = stages.iter().map(|s| s.host_bytes).max().unwrap_or(0);

@@ -129,7 +129,11 @@ fn paths_in(code: &str) -> Vec<String> {
                 continue;
             }
             let end = code[at..].find(|c: char| !(is_ident(c) || c == ':')).map_or(code.len(), |k| at + k);
-            out.push(code[at..end].trim_end_matches(':').to_string());
+            let path = code[at..end].trim_end_matches(':');
+            // `super::{a, b}` is a `use` list, expanded above; the bare prefix names nothing.
+            if path.contains("::") {
+                out.push(path.to_string());
+            }
         }
     }
     out
@@ -234,8 +238,8 @@ fn pipeline_is_orchestration_only() {
 #[test]
 fn use_lists_expand() {
     assert_eq!(expand("super::{a, b::{C, D}}"), ["super::a", "super::b::C", "super::b::D"]);
-    let code = code_of("use crate::x::Y; // crate::z\nfn f() { super::w::g(); \"crate::s\"; }\n#[cfg(test)]\nmod tests { use crate::t; }");
+    let code = code_of("use crate::x::Y; // crate::z\nuse super::{w};\nfn f() { super::w::g(); \"crate::s\"; }\n#[cfg(test)]\nmod tests { use crate::t; }");
     let mut paths = paths_in(&code);
     paths.dedup();
-    assert_eq!(paths, ["crate::x::Y", "super::w::g"]);
+    assert_eq!(paths, ["crate::x::Y", "super::w", "crate::x::Y", "super::w::g"]);
 }

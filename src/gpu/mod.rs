@@ -14,8 +14,10 @@
 //! themselves with, in [`clock`]).
 
 pub mod clock;
+pub mod footprint;
 
 pub use clock::now;
+pub use footprint::Footprint;
 
 use std::fmt;
 use std::future::Future;

@@ -70,7 +70,7 @@ use super::linalg::{self, dot};
 use super::error::KrrError;
 use super::mm::{kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmParts};
 use super::problem::{Eval, Grad, Params, Problem, Ridge};
-use crate::gpu::{now as now_s, specialise, to_u32, Gpu, GpuError};
+use crate::gpu::{now as now_s, specialise, to_u32, Footprint, Gpu, GpuError};
 
 const KERNEL_WGSL: &str = include_str!("../../shaders/krr_kernel_block.wgsl");
 const GRAM_WGSL: &str = include_str!("../../shaders/krr_gram.wgsl");
@@ -104,6 +104,38 @@ const WG: u32 = 64;
 /// Queries per predict submission, whatever the limits allow: short enough not to trip a
 /// browser's GPU watchdog (65536 queries × m = 500 × d = 32 ≈ 3 GFLOP).
 pub const PREDICT_CHUNK: usize = 65536;
+
+/// What [`GpuObjective`] allocates for `pairs` training pairs of `d` features and `m` inducing
+/// points when bindings are at most `binding` bytes: on the GPU `X`, `y` and the `K~` blocks
+/// (`4·pairs·(m + d + 4)`), one row block's scratch, the m×m accumulator and gradient sums; on
+/// the host the problem in f64 and its f32 upload (`8·pairs·(d + 1) + 4·pairs·(d + 3)`) and the
+/// f64 m×m algebra (about twelve m×m matrices).
+pub fn objective_footprint(pairs: u64, m: u64, d: u64, binding: u64) -> Footprint {
+    let rows = (binding / (4 * m)).min(MAX_BLOCK_ROWS as u64).min(pairs).max(1);
+    Footprint {
+        gpu: 4 * pairs * (m + d + 4) + 4 * rows * m + 16 * m * m + 48 * m * d,
+        largest: (4 * d * pairs).max(4 * rows * m).max(12 * m * m),
+        host: 8 * pairs * (d + 1) + 4 * pairs * (d + 3) + 96 * m * m,
+    }
+}
+
+/// The most training pairs of `d` features the GPU objective can take: `X` (4·d bytes a pair)
+/// is one buffer.
+pub fn max_pairs(binding: u64, d: u64) -> u64 {
+    binding / (4 * d)
+}
+
+/// The most inducing points the GPU objective can take: its m×m accumulator (12 bytes an entry)
+/// is one buffer.
+pub fn max_inducing_points(binding: u64) -> u64 {
+    ((binding / 12) as f64).sqrt() as u64
+}
+
+/// What [`GpuPredictor::predict`] allocates on the GPU for a chunk of `chunk` queries: the
+/// inducing points and the chunk's features and outputs.
+pub fn predict_footprint(m: u64, d: u64, chunk: u64) -> Footprint {
+    Footprint { gpu: 4 * m * d + (4 * d + 16) * chunk, largest: 4 * m * d, host: 0 }
+}
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

@@ -185,6 +185,24 @@ pub fn predict(beta: &[f64], z: &[f64], log_s: &[f64], queries: &[f64]) -> Resul
         .collect())
 }
 
+/// Host bytes per training pair of the f64 objective with `m` inducing points and `d` features:
+/// its `K_nm` row (f64), `X` twice (f32 and f64), the targets and a share of the gradient's
+/// row blocks.
+pub fn host_bytes_per_pair(m: u64, d: u64) -> u64 {
+    8 * (m + 2 * d + 3) + 8 * (d + 1)
+}
+
+/// Host bytes of the f64 objective on `pairs` pairs: per pair, and the m×m f64 matrices.
+pub fn host_bytes(pairs: u64, m: u64, d: u64) -> u64 {
+    pairs * host_bytes_per_pair(m, d) + 96 * m * m
+}
+
+/// Host bytes [`predict`] adds for `queries` queries of `d` features: their f64 copy and the
+/// result.
+pub fn predict_host_bytes(queries: u64, d: u64) -> u64 {
+    queries * (8 * d + 8)
+}
+
 /// The f64 reference as an [`Objective`] for the tuner.
 #[derive(Clone, Copy, Debug)]
 pub struct Reference<'a> {

@@ -12,7 +12,7 @@ use super::marching_cubes::weld;
 use super::refine::ActiveCells;
 use super::tables::CaseTable;
 use super::types::Mesh;
-use crate::gpu::{Gpu, GpuError};
+use crate::gpu::{Footprint, Gpu, GpuError};
 
 const SHADER: &str = include_str!("../../shaders/marching_cubes.wgsl");
 const WG: u32 = 64;
@@ -31,6 +31,16 @@ mod at {
 
 /// The largest resolution the GPU kernels take: edge keys `3 (R+1)³` must fit 32 bits.
 pub const GPU_MAX_RESOLUTION: u32 = 1124;
+
+/// What [`polygonize_gpu`] allocates for `active` active cells when bindings are at most
+/// `binding` bytes: it tiles the cells so that the triangle soup (240 bytes a cell: five
+/// triangles of three f32 vertices and their keys) fits one binding; per tile the cells'
+/// values, classes and offsets (52 bytes a cell), the soup and its readback copy, and the
+/// uniforms and case table (16 KiB).
+pub fn footprint(active: u64, binding: u64) -> Footprint {
+    let tile = active.min(binding / 240).max(1);
+    Footprint { gpu: 16_384 + 52 * tile + 96 * tile, largest: 240 * tile, host: 0 }
+}
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

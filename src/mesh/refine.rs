@@ -104,6 +104,40 @@ pub const MAX_RESOLUTION: u32 = 1024;
 /// The most corners the coarse grid (evaluated densely, in one batch) may have: 257³.
 pub const MAX_COARSE_CORNERS: u64 = 257 * 257 * 257;
 
+/// How much work meshing at `resolution` takes, estimated from refine batches measured on a
+/// sphere (about 19 R² evaluations in the largest batch), doubled: an estimate for the memory
+/// plan, not a bound.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MeshingSize {
+    /// Queries in the largest refine batch (the first is the coarse grid).
+    pub batch: u64,
+    /// Field evaluations in all.
+    pub evaluated: u64,
+    /// Active cells at the finest level.
+    pub active: u64,
+    pub triangles: u64,
+}
+
+impl MeshingSize {
+    pub fn at(resolution: u32) -> MeshingSize {
+        let r = resolution as u64;
+        let coarse = 33u64.pow(3);
+        let active = (r.pow(3)).min(7 * r * r);
+        MeshingSize {
+            batch: ((r + 1).pow(3)).min(coarse.max(40 * r * r)),
+            evaluated: ((r + 1).pow(3)).min(coarse + 55 * r * r),
+            active,
+            triangles: 2 * active,
+        }
+    }
+
+    /// Host bytes of the refinement and extraction themselves: a batch's corners and values,
+    /// every evaluated corner's key and value, the active cells and the welded mesh.
+    pub fn host_bytes(&self) -> u64 {
+        40 * self.batch + 32 * self.evaluated + 92 * self.active + 108 * self.triangles
+    }
+}
+
 /// Why extraction failed.
 #[derive(Debug)]
 pub enum ExtractError {

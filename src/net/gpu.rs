@@ -31,7 +31,7 @@ use std::collections::BTreeMap;
 
 use super::geometry::{Cells, Planes, UV_MAX};
 use super::weights::{NetConfig, Weights, ENCODER_BLOCKS};
-use crate::gpu::{specialise, to_u32, Gpu, GpuError};
+use crate::gpu::{specialise, to_u32, Footprint, Gpu, GpuError};
 
 const POINTNET_WGSL: &str = include_str!("../../shaders/net_pointnet.wgsl");
 const CONV2D_WGSL: &str = include_str!("../../shaders/net_conv2d.wgsl");
@@ -85,6 +85,60 @@ pub const MAX_DECODE_CHUNK: usize = 65536;
 /// the largest per-query binding is the features, `c_dim` f32 (at least 3, the query itself).
 pub fn max_decode_queries(binding: u64, c_dim: usize) -> usize {
     (binding / (c_dim.max(3) * 4) as u64).max(1) as usize
+}
+
+/// Bytes of the planes [`GpuNet::encode`] returns (three planes of `4·⌈c/4⌉` channels).
+pub fn planes_bytes(cfg: &NetConfig) -> u64 {
+    48 * cfg.c_dim.div_ceil(4) as u64 * (cfg.reso * cfg.reso) as u64
+}
+
+/// What one [`GpuNet::encode`] of `n` points allocates, as it and `unet` do: per point, the
+/// input, the PointNet's activations (`hb`, `cb` vec4s) and the cell indices; per occupied cell
+/// (at most `3 reso²`) the pooled features; the U-Net's activations and the output planes. On
+/// the host: the points and their cell indices (48 bytes a point).
+pub fn encode_footprint(cfg: &NetConfig, n: u64) -> Footprint {
+    let (c, reso) = (cfg.c_dim as u64, cfg.reso as u64);
+    let (hb, cb) = ((cfg.h as u64).div_ceil(4), c.div_ceil(4));
+    // As `unet` allocates: inputs, per level two convolutions (and a pool below the top), per
+    // upward level an up-convolution and a concatenation, then the output planes.
+    let mut floats = 3 * c * reso * reso;
+    for k in 0..cfg.unet_depth {
+        let r = reso >> k;
+        let f = cfg.filters(k) as u64;
+        if k > 0 {
+            floats += 3 * cfg.filters(k - 1) as u64 * r * r;
+        }
+        floats += 6 * f * r * r;
+        if k + 1 < cfg.unet_depth {
+            floats += 9 * f * r * r;
+        }
+    }
+    floats += 12 * cb * reso * reso;
+    let cells = (3 * n).min(3 * reso * reso);
+    Footprint {
+        gpu: (36 + 16 * hb + 16 * cb) * n + (8 + 16 * hb) * cells + 4 * floats,
+        largest: (16 * hb.max(cb) * n).max(16 * hb * cells).max(planes_bytes(cfg)),
+        host: 48 * n,
+    }
+}
+
+/// The most points one encode can take: its per-point buffers (`16·max(hb, cb)` bytes a point)
+/// are not tiled.
+pub fn max_encode_points(cfg: &NetConfig, binding: u64) -> u64 {
+    binding / (16 * (cfg.h as u64).div_ceil(4).max((cfg.c_dim as u64).div_ceil(4)))
+}
+
+/// Queries per decode submission, as [`GpuNet::decode`] picks them, for `queries` queries.
+pub fn decode_chunk(cfg: &NetConfig, binding: u64, queries: u64) -> u64 {
+    let max = max_decode_queries(binding, cfg.c_dim).min(MAX_DECODE_CHUNK);
+    (max as u64).min(queries).max(1)
+}
+
+/// What one decode submission of `queries` queries allocates on the GPU: queries, features and
+/// logits of a chunk, and their readback copies (the planes are counted by their owner).
+pub fn decode_footprint(cfg: &NetConfig, binding: u64, queries: u64) -> Footprint {
+    let (c, cd) = (cfg.c_dim as u64, decode_chunk(cfg, binding, queries));
+    Footprint { gpu: (20 + 8 * c) * cd, largest: 4 * c * cd, host: 0 }
 }
 
 #[repr(C)]
