@@ -460,10 +460,10 @@ impl Setting {
             }
             (Kind::Float { min, max }, Value::Num(x)) if x.is_finite() && (min..=max).contains(&x) => Ok(v),
             (Kind::Choice(choices), Value::Choice(c)) => {
-                choices.iter().find(|(value, _)| *value == c).map(|(value, _)| Value::Choice(value)).ok_or_else(|| self.range_error())
+                choices.iter().find(|(value, _)| *value == c).map(|(value, _)| Value::Choice(value)).ok_or_else(|| self.range_error(format!("'{c}'")))
             }
             (Kind::Switch, Value::Bool(_)) => Ok(v),
-            _ => Err(self.range_error()),
+            _ => Err(self.range_error(value_text(v))),
         }
     }
 
@@ -476,7 +476,7 @@ impl Setting {
                 if text.is_empty() && self.can_be_off {
                     return Ok(Value::Off);
                 }
-                let x: f64 = text.parse().map_err(|_| self.range_error())?;
+                let x: f64 = text.parse().map_err(|_| self.range_error(format!("'{text}'")))?;
                 self.check(Value::Num(x))
             }
             Kind::Choice(choices) => {
@@ -484,13 +484,13 @@ impl Setting {
                     return self.check(Value::Off);
                 }
                 let c = choices.iter().find(|(value, _)| *value == text).map(|(value, _)| *value);
-                c.map(Value::Choice).ok_or_else(|| self.range_error())
+                c.map(Value::Choice).ok_or_else(|| self.range_error(format!("'{text}'")))
             }
             Kind::Switch => match text {
                 // A bare share-link parameter (`?euclidean`) means on.
                 "" | "true" | "1" | "on" | "yes" => Ok(Value::Bool(true)),
                 "false" | "0" | "off" | "no" => Ok(Value::Bool(false)),
-                _ => Err(self.range_error()),
+                _ => Err(self.range_error(format!("'{text}'"))),
             },
         }
     }
@@ -509,8 +509,8 @@ impl Setting {
         }
     }
 
-    fn range_error(&self) -> String {
-        format!("{} must be {}", self.key, self.range())
+    fn range_error(&self, got: impl std::fmt::Display) -> String {
+        format!("{} must be {}, not {got}", self.key, self.range())
     }
 
     /// The default as text: "500", "nkrr", "off", "true".
@@ -640,8 +640,9 @@ mod tests {
     #[test]
     fn values_out_of_range_are_refused_with_the_range() {
         let m = by_key("m").unwrap();
-        assert_eq!(m.parse("0"), Err("m must be a whole number from 1 to 5000".into()));
-        assert_eq!(m.parse("2.5"), Err("m must be a whole number from 1 to 5000".into()));
+        assert_eq!(m.parse("0"), Err("m must be a whole number from 1 to 5000, not 0".into()));
+        assert_eq!(m.parse("2.5"), Err("m must be a whole number from 1 to 5000, not 2.5".into()));
+        assert_eq!(m.parse("lots"), Err("m must be a whole number from 1 to 5000, not 'lots'".into()));
         assert_eq!(m.parse("1000"), Ok(Value::Num(1000.0)));
         assert!(by_key("lambda").unwrap().parse("0").is_err());
         assert!(by_key("lambda").unwrap().parse("nan").is_err());

@@ -277,7 +277,7 @@ fn trim_opens_a_one_sided_scan() {
     assert_eq!(read_glb(&std::fs::read(&cli_glb).unwrap()).indices.len(), after.mesh.indices.len());
     let (code, err) = cli(&["reconstruct", half_ply.to_str().unwrap(), "-o", cli_glb.to_str().unwrap(), "--trim", "-1"]);
     assert_eq!(code, 2, "{err}");
-    assert!(err.contains("--trim must be > 0"), "{err}");
+    assert!(err.contains("--trim: trim must be a number from 0.1 to 1000, or 0 for off, not -1"), "{err}");
 
     let (b, a) = (&before.mesh, &after.mesh);
     assert!(before.trim.is_none() && b.is_watertight(), "untrimmed output stays watertight");

@@ -62,7 +62,7 @@ fn the_cli_refuses_each_setting_out_of_range_with_the_tables_words() {
         // `info` parses the options and stops there: no GPU work for a refused value.
         let (code, _, err) = nkrr(&["info", "/nonexistent.ply", def.flag, &bad]);
         assert_eq!(code, 2, "{} {bad}: {err}", def.flag);
-        assert!(err.contains(&format!("{}: {} must be {}", def.flag, def.key, def.range())), "{}: {err}", def.flag);
+        assert!(err.contains(&format!("{}: {} must be {}, not", def.flag, def.key, def.range())), "{}: {err}", def.flag);
     }
 }
 

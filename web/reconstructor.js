@@ -4,15 +4,16 @@
 //
 //   import { Reconstructor } from './web/reconstructor.js';
 //   const r = new Reconstructor();
-//   const out = await r.reconstruct(plyBytes, { resolution: 128 }, { onProgress, signal });
+//   const out = await r.reconstruct(cloudBytes, { resolution: 128 }, { onProgress, signal });
 //   // out.glb: Uint8Array (a .glb file); out.positions, out.normals: Float32Array (xyz per
 //   // vertex); out.indices: Uint32Array (3 per triangle); out.colors: Uint8Array (RGBA per vertex,
 //   // empty without colours); out.translation: Float64Array (xyz of a far-off cloud, or empty); out.stats: vertices, triangles,
 //   // watertight, timings [{ stage, seconds }], notices, tuning, …
 //
-// Options (all optional; defaults are the paper's): method ('network' | 'nkrr'), m, steps,
-// resolution (16–1024), removeSmall (0–1, 0 keeps every piece), maxPoints, lambda, labelClip, name,
-// trim (factor of the mean point spacing; 0 or absent keeps the mesh watertight).
+// Options (all optional): every key of the wasm module's settings_table() (method, resolution,
+// m, steps, removeSmall, units, trim, …: the same settings, ranges and defaults as the CLI's
+// flags, defined once in src/settings.rs; a value out of range rejects with a RangeError that
+// names it), and name (the glTF node's name).
 // Progress: onProgress({ stage: 'setup' | 'features' | 'pairs' | 'tuning' | 'meshing' | 'done',
 // step, of, loss, evaluated }). Aborting the signal rejects at once with an AbortError; the
 // worker stops at its next step, or is replaced if it has not within `graceMs` (CPU-bound steps
@@ -51,21 +52,21 @@ export class Reconstructor {
   }
 
   /**
-   * Reconstructs a surface from a PLY file's bytes.
-   * @param {ArrayBuffer | ArrayBufferView | Blob} ply
+   * Reconstructs a surface from a cloud file's bytes (PLY, LAS/LAZ, E57 or XYZ/PTS/CSV text).
+   * @param {ArrayBuffer | ArrayBufferView | Blob} cloud
    * @param {object} [options]
    * @param {{ onProgress?: (p: object) => void, signal?: AbortSignal }} [hooks]
    */
-  reconstruct(ply, options = {}, { onProgress, signal } = {}) {
+  reconstruct(cloud, options = {}, { onProgress, signal } = {}) {
     if (this.job) return Promise.reject(new DOMException('a reconstruction is already running', 'InvalidStateError'));
     if (signal?.aborted) return Promise.reject(signal.reason);
     // A Blob (a File) goes to the worker as is and is read there: the page holds no copy.
     // Bytes are copied, so the caller keeps its own.
     let bytes, transfer = [];
-    if (ply instanceof Blob) bytes = ply;
-    else if (ply instanceof ArrayBuffer) transfer = [bytes = ply.slice(0)];
-    else if (ArrayBuffer.isView(ply)) transfer = [bytes = ply.buffer.slice(ply.byteOffset, ply.byteOffset + ply.byteLength)];
-    else return Promise.reject(new TypeError('ply must be an ArrayBuffer, a typed array or a Blob'));
+    if (cloud instanceof Blob) bytes = cloud;
+    else if (cloud instanceof ArrayBuffer) transfer = [bytes = cloud.slice(0)];
+    else if (ArrayBuffer.isView(cloud)) transfer = [bytes = cloud.buffer.slice(cloud.byteOffset, cloud.byteOffset + cloud.byteLength)];
+    else return Promise.reject(new TypeError('cloud must be an ArrayBuffer, a typed array or a Blob'));
     // A worker still busy with an aborted run would make this one wait: start afresh.
     if (!this.worker || this.stopping) this._replace();
     const id = this.nextId++;
@@ -177,10 +178,10 @@ function workerError({ name, message }) {
 }
 
 /** One-shot convenience: a new worker for one reconstruction, ended afterwards. */
-export async function reconstruct(ply, options, hooks) {
+export async function reconstruct(cloud, options, hooks) {
   const r = new Reconstructor();
   try {
-    return await r.reconstruct(ply, options, hooks);
+    return await r.reconstruct(cloud, options, hooks);
   } finally {
     r.dispose();
   }

@@ -99,6 +99,52 @@ pub const PREDICT_SEGMENT: usize = 256;
 /// Most rows per block, whatever the binding limit allows: keeps each `K~` buffer moderate
 /// (≤ 256 KiB per inducing point). The exact sums would not need it.
 pub const MAX_BLOCK_ROWS: usize = 65535;
+/// Binding indices of `shaders/krr_kernel_block.wgsl` (its `@group(0) @binding(N)`
+/// declarations; keep the two in step).
+mod kernel_at {
+    pub const X: u32 = 0;
+    pub const Z: u32 = 1;
+    pub const INV_S: u32 = 2;
+    pub const K: u32 = 3;
+    pub const DIMS: u32 = 4;
+}
+
+/// Binding indices of `shaders/krr_gram.wgsl`.
+mod gram_at {
+    pub const K: u32 = 0;
+    pub const ACC: u32 = 1;
+    pub const DIMS: u32 = 2;
+    pub const YQ: u32 = 3;
+    pub const BACC: u32 = 4;
+}
+
+/// Binding indices of `shaders/krr_grad.wgsl`.
+mod grad_at {
+    pub const K: u32 = 0;
+    pub const W: u32 = 1;
+    pub const BETA: u32 = 2;
+    pub const R: u32 = 3;
+    pub const P: u32 = 4;
+    pub const X: u32 = 5;
+    pub const Z: u32 = 6;
+    pub const PART: u32 = 7;
+    pub const DIMS: u32 = 8;
+    pub const PART_IN: u32 = 9;
+    pub const SUMS: u32 = 10;
+    pub const SUM_DIMS: u32 = 11;
+    pub const Y: u32 = 12;
+}
+
+/// Binding indices of `shaders/krr_predict.wgsl`.
+mod predict_at {
+    pub const QUERIES: u32 = 0;
+    pub const Z: u32 = 1;
+    pub const INV_S: u32 = 2;
+    pub const BETA: u32 = 3;
+    pub const OUT: u32 = 4;
+    pub const DIMS: u32 = 5;
+}
+
 /// Workgroup size of the 1-D kernels (`residual`, `grad_sum`).
 const WG: u32 = 64;
 /// Queries per predict submission, whatever the limits allow: short enough not to trip a
@@ -448,7 +494,17 @@ impl GpuPredictor {
         let mut segments = Vec::new();
         for j_begin in (0..m).step_by(PREDICT_SEGMENT) {
             let dims = g.uniform("krr predict dims", &dims_of(chunk, j_begin)?);
-            let bg = g.bind_at(&self.pipe, &[(0, &q_buf), (1, &z_buf), (2, &s_buf), (3, &b_buf), (4, &o_buf), (5, &dims)]);
+            let bg = g.bind_at(
+                &self.pipe,
+                &[
+                    (predict_at::QUERIES, &q_buf),
+                    (predict_at::Z, &z_buf),
+                    (predict_at::INV_S, &s_buf),
+                    (predict_at::BETA, &b_buf),
+                    (predict_at::OUT, &o_buf),
+                    (predict_at::DIMS, &dims),
+                ],
+            );
             segments.push((j_begin, dims, bg));
         }
         for q0 in (0..nq).step_by(chunk) {
@@ -807,7 +863,7 @@ impl GpuObjective {
             );
             let bg = g.bind_at(
                 &self.pipes.kernel_block,
-                &[(0, &self.x), (1, &ws.z), (2, &ws.inv_s), (3, &ws.k[b]), (4, &dims)],
+                &[(kernel_at::X, &self.x), (kernel_at::Z, &ws.z), (kernel_at::INV_S, &ws.inv_s), (kernel_at::K, &ws.k[b]), (kernel_at::DIMS, &dims)],
             );
             let groups = [m.div_ceil(TILE) as u32, blk.rows.div_ceil(TILE) as u32, 1];
             g.encode_pass(&mut enc, &self.pipes.kernel_block, &bg, groups);
@@ -832,9 +888,9 @@ impl GpuObjective {
                         _pad: [0; 3],
                     },
                 );
-                let bg = g.bind_at(&self.pipes.gram, &[(0, &ws.k[b]), (1, &ws.acc), (2, &dims)]);
+                let bg = g.bind_at(&self.pipes.gram, &[(gram_at::K, &ws.k[b]), (gram_at::ACC, &ws.acc), (gram_at::DIMS, &dims)]);
                 g.encode_pass(&mut enc, &self.pipes.gram, &bg, [tiles, tiles, 1]);
-                let bg = g.bind_at(&self.pipes.gram_b, &[(0, &ws.k[b]), (2, &dims), (3, &self.yq), (4, &ws.bacc)]);
+                let bg = g.bind_at(&self.pipes.gram_b, &[(gram_at::K, &ws.k[b]), (gram_at::DIMS, &dims), (gram_at::YQ, &self.yq), (gram_at::BACC, &ws.bacc)]);
                 g.encode_pass(&mut enc, &self.pipes.gram_b, &bg, [tiles, 1, 1]);
             }
         }
@@ -991,23 +1047,30 @@ impl GpuObjective {
             // r = K~β − y for this block, then P.
             let bg = g.bind_at(
                 &self.pipes.residual,
-                &[(0, &ws.k[bi]), (2, &ws.beta), (3, &ws.r), (8, &dims), (12, &self.y)],
+                &[(grad_at::K, &ws.k[bi]), (grad_at::BETA, &ws.beta), (grad_at::R, &ws.r), (grad_at::DIMS, &dims), (grad_at::Y, &self.y)],
             );
             g.encode_pass(&mut enc, &self.pipes.residual, &bg, g.dispatch_linear(blk.rows as u64, WG)?);
             let bg = g.bind_at(
                 &self.pipes.grad_p,
-                &[(0, &ws.k[bi]), (1, &ws.w), (2, &ws.beta), (3, &ws.r), (4, &ws.p), (8, &dims)],
+                &[
+                    (grad_at::K, &ws.k[bi]),
+                    (grad_at::W, &ws.w),
+                    (grad_at::BETA, &ws.beta),
+                    (grad_at::R, &ws.r),
+                    (grad_at::P, &ws.p),
+                    (grad_at::DIMS, &dims),
+                ],
             );
             g.encode_pass(&mut enc, &self.pipes.grad_p, &bg, [m.div_ceil(TILE) as u32, blk.rows.div_ceil(TILE) as u32, 1]);
             let bg = g.bind_at(
                 &self.pipes.grad_reduce,
-                &[(4, &ws.p), (5, &self.x), (6, &ws.z), (7, &ws.part), (8, &dims)],
+                &[(grad_at::P, &ws.p), (grad_at::X, &self.x), (grad_at::Z, &ws.z), (grad_at::PART, &ws.part), (grad_at::DIMS, &dims)],
             );
             g.encode_pass(&mut enc, &self.pipes.grad_reduce, &bg, [m.div_ceil(RED_J) as u32, blk.chunks as u32, 1]);
         }
         let len = 2 * m * d;
         let sdims = g.uniform("krr sum dims", &SumDims { len: len as u32, chunks: ws.total_chunks as u32, one: 1.0, _b: 0 });
-        let bg = g.bind_at(&self.pipes.grad_sum, &[(9, &ws.part), (10, &ws.sums), (11, &sdims)]);
+        let bg = g.bind_at(&self.pipes.grad_sum, &[(grad_at::PART_IN, &ws.part), (grad_at::SUMS, &ws.sums), (grad_at::SUM_DIMS, &sdims)]);
         g.encode_pass(&mut enc, &self.pipes.grad_sum, &bg, g.dispatch_linear(len as u64, WG)?);
         g.queue.submit([enc.finish()]);
         g.poll_wait();

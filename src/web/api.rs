@@ -317,7 +317,7 @@ impl Options {
             } else if let Some(t) = raw.as_string() {
                 def.parse(&t)
             } else {
-                Err(format!("{} must be {}", def.key, def.range()))
+                Err(format!("{} must be {}, not {}", def.key, def.range(), raw.js_typeof().as_string().unwrap_or_default()))
             };
             value.and_then(|v| def.set(&mut settings, v)).map_err(|e| error("RangeError", &e))?;
         }

@@ -100,12 +100,6 @@ pub fn parse_cloud(bytes: &[u8], name: Option<String>) -> Result<Cloud, JsError>
     scan::read_cloud(bytes, name.as_deref()).map(|parsed| Cloud { parsed }).map_err(|e| JsError::new(&e.to_string()))
 }
 
-/// [`parse_cloud`] without a name (kept for pages written against the PLY-only API).
-#[wasm_bindgen]
-pub fn parse_ply(bytes: &[u8]) -> Result<Cloud, JsError> {
-    parse_cloud(bytes, None)
-}
-
 /// The file extensions the readers accept, for a file picker's `accept`.
 #[wasm_bindgen]
 pub fn cloud_extensions() -> Vec<String> {

@@ -8,7 +8,7 @@ mod js;
 mod viewer;
 
 pub use api::{preflight, prepare_engine, reconstruct, settings_table, simulate_device_loss};
-pub use cloud::{cloud_extensions, parse_cloud, parse_ply, Cloud};
+pub use cloud::{cloud_extensions, parse_cloud, Cloud};
 pub use viewer::Viewer;
 
 use wasm_bindgen::prelude::*;
