@@ -235,3 +235,37 @@ test('a share link value that does not fit its setting is reported and not used;
     await b.close();
   }
 });
+
+test('the JS API takes every setting of the table, with its range, and refuses values outside it', { timeout: 180_000 }, async () => {
+  const b = await browser();
+  try {
+    const { page, errors } = await readyPage(b);
+    const results = await page.evaluate(() => {
+      const nk = window.wasmBindings;
+      const t = nk.settings_table();
+      const call = (options) => {
+        try {
+          nk.preflight(3000, false, options, 128 * 1024 * 1024, true);
+          return null;
+        } catch (e) {
+          return `${e.name}: ${e.message}`;
+        }
+      };
+      return t.map((s) => {
+        let good, bad;
+        if (s.kind === 'switch') { good = !s.default; bad = 'maybe'; }
+        else if (s.kind === 'choice') { good = s.choices[s.choices.length - 1].value; bad = 'bogus'; }
+        else { good = s.max; bad = s.max * 2 + 1; }
+        return { key: s.key, kind: s.kind, min: s.min, max: s.max, good: call({ [s.key]: good }), bad: call({ [s.key]: bad }) };
+      });
+    });
+    for (const r of results) {
+      assert.equal(r.good, null, `${r.key}: an in-range value was refused: ${r.good}`);
+      assert.match(r.bad ?? '', new RegExp(`^RangeError: ${r.key} must be `), `${r.key}: ${r.bad}`);
+      if (r.kind === "int" || r.kind === "float") assert.ok(r.bad.includes(` to ${r.max}`), `${r.key}: ${r.bad}`);
+    }
+    assert.deepEqual(errors, []);
+  } finally {
+    await b.close();
+  }
+});
