@@ -10,6 +10,7 @@ use crate::cloud::{subsample, CloudError, Normalization, PointCloud};
 use crate::field::{self, Field, FitError, TuningSummary};
 use crate::gpu::{now, Gpu, GpuError};
 use crate::krr::KrrError;
+use crate::mesh::fit::{FitOptions, FitReport};
 use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, ExtractStats, FieldError, Mesh, TrimReport};
 use crate::net::{GpuNet, NetError, Weights};
 use crate::plan::{DeviceFacts, MemoryPlan};
@@ -77,6 +78,8 @@ pub struct Reconstruction {
     pub mesh: Mesh,
     /// The cloud's [`PointCloud::origin`]: zero unless the reader moved a far-off cloud near 0.
     pub origin: [f64; 3],
+    /// What the last fit to the points did, when [`Settings::fit`] asked for it.
+    pub fit: Option<FitReport>,
     /// What trimming removed, when [`Settings::trim`] asked for it (its spacing and threshold
     /// are in the network's unit cube: times the cloud's longest side for the cloud's units).
     pub trim: Option<TrimReport>,
@@ -199,7 +202,13 @@ impl Engine {
         timings.push(("mesh", now() - t));
 
         let mut mesh = extraction.mesh;
-        // Trimmed in the unit cube, against the points the network saw.
+        // Fitted and trimmed in the unit cube, against the points the network saw.
+        let fit = settings.fit.then(|| {
+            let t = now();
+            let r = crate::mesh::fit::fit_to_points(&mut mesh, &points, &FitOptions::for_points(points.len()));
+            timings.push(("fit", now() - t));
+            r
+        });
         let trim = settings.trim.map(|factor| {
             let t = now();
             let r = crate::mesh::trim(&mut mesh, &points, factor);
@@ -229,6 +238,6 @@ impl Engine {
             origin = origin.map(|c| c * s);
         }
         (progress.borrow_mut())(&Stage::Done);
-        Ok(Reconstruction { mesh, origin, trim, notices, extract: extraction.stats, tuning, timings })
+        Ok(Reconstruction { mesh, origin, fit, trim, notices, extract: extraction.stats, tuning, timings })
     }
 }

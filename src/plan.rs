@@ -221,8 +221,12 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
             host: evaluate.host,
         }),
     ));
-    if settings.trim.is_some() || (colours && settings.colors) {
+    if settings.fit || settings.trim.is_some() || (colours && settings.colors) {
         let mut host = 12 * size.triangles + 12 * size.active;
+        // The fit and the trim each index the points (and their neighbour lists).
+        if settings.fit {
+            host += 2 * (12 * n + 8 * n);
+        }
         if settings.trim.is_some() {
             host += 2 * (12 * n + 8 * n);
         }

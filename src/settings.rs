@@ -65,6 +65,7 @@ pub struct Settings {
     pub euclidean: bool,
     pub krr_backend: KrrBackend,
     pub trim: Option<f32>,
+    pub fit: bool,
     pub colors: bool,
     pub units: Option<Units>,
 }
@@ -88,6 +89,7 @@ impl Default for Settings {
             euclidean: false,
             krr_backend: KrrBackend::Auto,
             trim: None,
+            fit: false,
             colors: false,
             units: None,
         };
@@ -115,7 +117,7 @@ pub enum Kind {
     Int { min: f64, max: f64 },
     /// A number in `min..=max`.
     Float { min: f64, max: f64 },
-    /// One of (value, label); a setting whose default is [`Value::Off`] also takes "" for off.
+    /// One of (value, label); a setting whose default is [`Value::Off`] lists "" (off) among them.
     Choice(&'static [(&'static str, &'static str)]),
     /// On or off. Its CLI flag sets the opposite of the default (`--no-colors`, `--euclidean`).
     Switch,
@@ -271,6 +273,7 @@ pub static TABLE: &[Setting] = &[
         label: "Units of the cloud",
         help: "the cloud's length unit: the mesh is scaled to metres (glTF's unit); unset keeps coordinates as they are",
         kind: Kind::Choice(&[
+            ("", "As in the file"),
             ("mm", "millimetres"),
             ("cm", "centimetres"),
             ("m", "metres"),
@@ -294,6 +297,17 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| from_opt(s.trim),
         set: |s, v| s.trim = opt_f32(v),
+        ..NUM
+    },
+    Setting {
+        key: "fit",
+        flag: "--no-fit",
+        label: "Fit the mesh to the points",
+        help: "move each vertex onto the least-squares plane of its nearest points (the flag keeps the field's level set as it is, as the paper does)",
+        kind: Kind::Switch,
+        default: Value::Bool(true),
+        get: |s| Value::Bool(s.fit),
+        set: |s, v| s.fit = flag(v),
         ..NUM
     },
     Setting {
@@ -459,6 +473,7 @@ impl Setting {
                 Ok(v)
             }
             (Kind::Float { min, max }, Value::Num(x)) if x.is_finite() && (min..=max).contains(&x) => Ok(v),
+            (Kind::Choice(_), Value::Choice("")) if self.default == Value::Off => Ok(Value::Off),
             (Kind::Choice(choices), Value::Choice(c)) => {
                 choices.iter().find(|(value, _)| *value == c).map(|(value, _)| Value::Choice(value)).ok_or_else(|| self.range_error(format!("'{c}'")))
             }
@@ -480,11 +495,8 @@ impl Setting {
                 self.check(Value::Num(x))
             }
             Kind::Choice(choices) => {
-                if text.is_empty() {
-                    return self.check(Value::Off);
-                }
                 let c = choices.iter().find(|(value, _)| *value == text).map(|(value, _)| *value);
-                c.map(Value::Choice).ok_or_else(|| self.range_error(format!("'{text}'")))
+                c.map(Value::Choice).ok_or_else(|| self.range_error(format!("'{text}'"))).and_then(|v| self.check(v))
             }
             Kind::Switch => match text {
                 // A bare share-link parameter (`?euclidean`) means on.
@@ -502,8 +514,9 @@ impl Setting {
             Kind::Int { min, max } => format!("a whole number from {min} to {max}{off}"),
             Kind::Float { min, max } => format!("a number from {min} to {max}{off}"),
             Kind::Choice(choices) => {
-                let names: Vec<&str> = choices.iter().map(|(v, _)| *v).collect();
-                format!("one of {}", names.join(", "))
+                let names: Vec<&str> = choices.iter().map(|(v, _)| *v).filter(|v| !v.is_empty()).collect();
+                let off = if self.default == Value::Off { ", or empty for none" } else { "" };
+                format!("one of {}{off}", names.join(", "))
             }
             Kind::Switch => "true or false".to_string(),
         }
@@ -523,7 +536,7 @@ impl Setting {
         let head = match self.kind {
             Kind::Switch => self.flag.to_string(),
             Kind::Choice(choices) => {
-                let names: Vec<&str> = choices.iter().map(|(v, _)| *v).collect();
+                let names: Vec<&str> = choices.iter().map(|(v, _)| *v).filter(|v| !v.is_empty()).collect();
                 format!("{} {}", self.flag, names.join("|"))
             }
             Kind::Int { .. } => format!("{} N", self.flag),
@@ -614,7 +627,9 @@ mod tests {
                 Kind::Int { min, max } | Kind::Float { min, max } => {
                     Value::Num(if def.default == Value::Num(max) { min } else { max })
                 }
-                Kind::Choice(c) => Value::Choice(c.iter().map(|(v, _)| *v).find(|v| Value::Choice(v) != def.default).unwrap()),
+                Kind::Choice(c) => {
+                    Value::Choice(c.iter().map(|(v, _)| *v).find(|v| !v.is_empty() && Value::Choice(v) != def.default).unwrap())
+                }
                 Kind::Switch => Value::Bool(def.default != Value::Bool(true)),
             };
             let mut s = base.clone();

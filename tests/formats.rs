@@ -278,5 +278,5 @@ fn units_scale_the_mesh_to_metres_and_millimetres_are_suspected() {
         assert!(((hi_s[a] - lo_s[a]) * 1e3 - (hi_p[a] - lo_p[a])).abs() < 1e-3 * (hi_p[a] - lo_p[a]), "axis {a}");
     }
     let (ok, log) = run(&[&base[..], &["--units", "furlong", "-o", scaled.to_str().unwrap()]].concat());
-    assert!(!ok && log.contains("--units: units must be one of mm, cm, m, in, ft, not 'furlong'"), "{log}");
+    assert!(!ok && log.contains("--units: units must be one of mm, cm, m, in, ft, or empty for none, not 'furlong'"), "{log}");
 }

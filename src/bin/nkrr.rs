@@ -26,8 +26,8 @@ USAGE:
               [--keep-meshes] [reconstruct options except -o and --method]
                             reconstruct every DIR/NAME-SIZE.ply with each method, score it
                             against DIR/NAME.obj; writes PREFIX.md and PREFIX.json  [eval]
-        methods: network, nkrr, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean,
-                 nkrr-m<N> (e.g. nkrr-m1000)
+        methods: network, network-no-fit, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta,
+                 nkrr-no-z, nkrr-euclidean, nkrr-m<N> (e.g. nkrr-m1000)
         --keep-meshes              also write PREFIX-NAME-SIZE-METHOD.glb
     nkrr bench [--sizes 3000,10000,50000] [--ms 500,1000] [reconstruct options]
                             per-stage times on a synthetic noisy torus (adapter printed)
@@ -240,6 +240,9 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         if let Some(p) = &t.phases {
             eprintln!("tuning phases over {} evaluations: {}", t.evaluations, p.summary());
         }
+    }
+    if let Some(f) = &rec.fit {
+        eprintln!("fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone", f.moved, f.mean_shift, f.kept);
     }
     for n in &rec.notices {
         eprintln!("notice: {n}");

@@ -348,12 +348,15 @@ fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> 
 /// `network`, `nkrr`, `nkrr-no-tune` (no test-time tuning), `nkrr-no-theta` (length-scales
 /// fixed), `nkrr-no-z` (inducing points fixed), `nkrr-euclidean` (KRR on Fourier-encoded
 /// coordinates instead of the network's features), `nkrr-m<N>` (N inducing points, e.g.
-/// `nkrr-m1000`).
+/// `nkrr-m1000`); `nkrr-no-fit` and `network-no-fit` leave out the last fit of the mesh to the
+/// points (the paper's output: the field's level set as it is).
 pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String> {
     let nkrr = Settings { method: Method::Nkrr, ..base.clone() };
     Ok(match name {
         "network" => Settings { method: Method::Network, ..base.clone() },
+        "network-no-fit" => Settings { method: Method::Network, fit: false, ..base.clone() },
         "nkrr" => nkrr,
+        "nkrr-no-fit" => Settings { fit: false, ..nkrr },
         "nkrr-no-tune" => Settings { steps: 0, ..nkrr },
         "nkrr-no-theta" => Settings { tune_theta: false, ..nkrr },
         "nkrr-no-z" => Settings { tune_z: false, ..nkrr },
@@ -362,7 +365,7 @@ pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String>
             Some(m) => Settings { m, ..nkrr },
             None => {
                 return Err(format!(
-                    "unknown method '{s}' (expected network, nkrr, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean or nkrr-m<N>)"
+                    "unknown method '{s}' (expected network, network-no-fit, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean or nkrr-m<N>)"
                 ))
             }
         },

@@ -41,6 +41,15 @@ pub struct FitOptions {
     pub max_distance: f32,
 }
 
+impl FitOptions {
+    /// The neighbourhood for a cloud of `n` points (in the unit cube, with the scanner noise of
+    /// the eval clouds): chosen on the tuning shapes (docs/results.md, "The last fit").
+    pub fn for_points(n: usize) -> FitOptions {
+        let k = (0.2 * (n as f64).sqrt()).round().clamp(6.0, 32.0) as usize;
+        FitOptions { k, scale: 0.8, max_distance: 3.0 }
+    }
+}
+
 /// Moves `mesh`'s vertices onto the weighted least-squares planes of `points` (same
 /// coordinates), then recomputes its normals. Triangles and topology are unchanged.
 pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) -> FitReport {
