@@ -303,7 +303,7 @@ pub static TABLE: &[Setting] = &[
         key: "fit",
         flag: "--no-fit",
         label: "Fit the mesh to the points",
-        help: "move each vertex onto the least-squares plane of its nearest points (the flag keeps the field's level set as it is, as the paper does)",
+        help: "move each vertex onto the least-squares plane of its nearest points; off keeps the field's level set as it is (the paper's output)",
         kind: Kind::Switch,
         default: Value::Bool(true),
         get: |s| Value::Bool(s.fit),
@@ -314,7 +314,7 @@ pub static TABLE: &[Setting] = &[
         key: "colors",
         flag: "--no-colors",
         label: "Vertex colours",
-        help: "colour the mesh's vertices from a coloured cloud (COLOR_0); the flag leaves them out",
+        help: "colour the mesh's vertices from a coloured cloud (written as COLOR_0)",
         kind: Kind::Switch,
         default: Value::Bool(true),
         advanced: true,
@@ -379,7 +379,7 @@ pub static TABLE: &[Setting] = &[
         key: "tuneTheta",
         flag: "--no-theta",
         label: "Tune length-scales",
-        help: "tune the kernel length-scales θ (the flag is the paper's ablation 'w/o θ')",
+        help: "tune the kernel length-scales θ; off is the paper's ablation 'w/o θ'",
         kind: Kind::Switch,
         default: Value::Bool(true),
         nkrr_only: true,
@@ -392,7 +392,7 @@ pub static TABLE: &[Setting] = &[
         key: "tuneZ",
         flag: "--no-z",
         label: "Tune inducing points",
-        help: "tune the inducing points Z (the flag is the paper's ablation 'w/o Z')",
+        help: "tune the inducing points Z; off is the paper's ablation 'w/o Z'",
         kind: Kind::Switch,
         default: Value::Bool(true),
         nkrr_only: true,
@@ -558,11 +558,12 @@ impl Setting {
             _ => String::new(),
         };
         let extra = if extra.is_empty() { String::new() } else { format!("; {}", extra.join("; ")) };
-        let default = match self.kind {
-            Kind::Switch => String::new(),
-            _ => format!("  [{}]", self.default_text()),
+        let (turns, default) = match (self.kind, self.default) {
+            (Kind::Switch, Value::Bool(true)) => ("turns off: ", String::new()),
+            (Kind::Switch, _) => ("turns on: ", String::new()),
+            _ => ("", format!("  [{}]", self.default_text())),
         };
-        format!("        {head:<26} {}{range}{extra}{default}", self.help)
+        format!("        {head:<26} {turns}{}{range}{extra}{default}", self.help)
     }
 }
 

@@ -13,8 +13,10 @@
 //! the covariance's eigenvector of the smallest eigenvalue, and v' = v − ((v − c)·n) n. A vertex
 //! is left where it is when its nearest point is farther than `max_distance` × the cloud's mean
 //! spacing (there is no data there to fit: the field's surface over a hole stays as it is), or
-//! when the plane's normal is more than 60° from the mesh's own normal there (two sheets of a
-//! thin part, or a corner, in one neighbourhood: the plane would cut across the surface).
+//! when the plane's normal is more than about 75° from the mesh's own normal there (two sheets of
+//! a thin part, or a corner, in one neighbourhood: the plane would cut across the surface).
+//! The moves are then averaged over each vertex's mesh neighbours a few times (`smoothing`), so
+//! the noise of each small plane fit does not reach the surface's normals.
 
 use super::types::Mesh;
 use crate::sample::{mean_spacing, PointIndex};
@@ -39,14 +41,24 @@ pub struct FitOptions {
     pub scale: f32,
     /// Vertices whose nearest point is farther than this many mean spacings stay put.
     pub max_distance: f32,
+    /// Rounds of averaging each vertex's displacement with its neighbours' (over the mesh's
+    /// edges) before it is applied: each plane is fitted to a few noisy points, and moving every
+    /// vertex on its own would carry that noise into the surface's normals.
+    pub smoothing: usize,
 }
 
 impl FitOptions {
-    /// The neighbourhood for a cloud of `n` points (in the unit cube, with the scanner noise of
-    /// the eval clouds): chosen on the tuning shapes (docs/results.md, "The last fit").
+    /// The neighbourhood for a cloud of `n` points, chosen on three of the six eval shapes (cow,
+    /// fandisk, suzanne) at 500, 3k and 10k points and reported on the other three (docs/fit.md):
+    /// k grows as √n (8 at 500, 11 at 3k, 20 at 10k), the Gaussian widens a little with it, and
+    /// the moves are smoothed more the sparser the cloud (10 rounds at 500, 4 at 3k, none from
+    /// 10k on, where 20-point planes are already smooth and smoothing only blurs).
     pub fn for_points(n: usize) -> FitOptions {
-        let k = (0.2 * (n as f64).sqrt()).round().clamp(6.0, 32.0) as usize;
-        FitOptions { k, scale: 0.8, max_distance: 3.0 }
+        let n = n.max(1) as f64;
+        let k = (0.2 * n.sqrt()).round().clamp(8.0, 32.0) as usize;
+        let t = ((n.log10() - 500f64.log10()) / (10_000f64.log10() - 500f64.log10())).clamp(0.0, 1.0);
+        let smoothing = (10.0 - 7.7 * (n.log10() - 500f64.log10())).round().clamp(0.0, 12.0) as usize;
+        FitOptions { k, scale: (0.45 + 0.1 * t) as f32, max_distance: 3.0, smoothing }
     }
 }
 
@@ -66,29 +78,82 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     let index = PointIndex::new(points);
     let k = opts.k.min(points.len());
     let mut near = Vec::with_capacity(k);
-    let mut shift = 0.0f64;
-    for (v, n_mesh) in mesh.positions.iter_mut().zip(&mesh.normals) {
+    // Each vertex's move onto its plane (zero where it stays).
+    let mut moves: Vec<[f64; 3]> = Vec::with_capacity(mesh.positions.len());
+    for (v, n_mesh) in mesh.positions.iter().zip(&mesh.normals) {
         index.k_nearest(*v, k, &mut near);
-        let moved = near.first().is_some_and(|&(d2, _)| (d2 as f64) <= reach2)
-            && match plane(points, &near, opts.scale as f64) {
-                Some((c, n)) if dot(n, n_mesh.map(f64::from)).abs() >= 0.5 => {
-                    let p = v.map(f64::from);
-                    let off = dot(sub(p, c), n);
-                    shift += off.abs();
-                    *v = [0, 1, 2].map(|a| (p[a] - off * n[a]) as f32);
-                    true
-                }
-                _ => false,
-            };
-        if moved {
-            report.moved += 1;
-        } else {
-            report.kept += 1;
+        let within = near.first().is_some_and(|&(d2, _)| (d2 as f64) <= reach2);
+        let plane = if within { plane(points, &near, opts.scale as f64) } else { None };
+        match plane {
+            Some((c, n)) if dot(n, n_mesh.map(f64::from)).abs() >= MIN_COS => {
+                let off = dot(sub(v.map(f64::from), c), n);
+                moves.push(n.map(|x| -off * x));
+                report.moved += 1;
+            }
+            _ => {
+                moves.push([0.0; 3]);
+                report.kept += 1;
+            }
         }
+    }
+    let moves = smooth(&moves, &mesh.indices, opts.smoothing);
+    let mut shift = 0.0f64;
+    for (v, d) in mesh.positions.iter_mut().zip(&moves) {
+        shift += dot(*d, *d).sqrt();
+        *v = [0, 1, 2].map(|a| (v[a] as f64 + d[a]) as f32);
     }
     report.mean_shift = if report.moved > 0 && spacing > 0.0 { shift / report.moved as f64 / spacing } else { 0.0 };
     mesh.compute_vertex_normals();
     report
+}
+
+/// Planes more than about 75° from the mesh's own normal are not used (see the module docs).
+const MIN_COS: f64 = 0.25;
+
+/// `rounds` rounds of replacing each vertex's value by the mean over itself and its neighbours
+/// along the edges of `indices` (a uniform, Jacobi-style average).
+fn smooth(values: &[[f64; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> {
+    let n = values.len();
+    if rounds == 0 || n == 0 {
+        return values.to_vec();
+    }
+    // Each vertex's distinct neighbours, as compressed rows.
+    let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(indices.len() * 2);
+    for t in indices.chunks_exact(3) {
+        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+            if (a as usize) < n && (b as usize) < n && a != b {
+                pairs.push((a, b));
+                pairs.push((b, a));
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    let mut start = vec![0usize; n + 1];
+    for &(a, _) in &pairs {
+        start[a as usize + 1] += 1;
+    }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let mut cur = values.to_vec();
+    let mut next = vec![[0.0f64; 3]; n];
+    for _ in 0..rounds {
+        for (i, out) in next.iter_mut().enumerate() {
+            let row = &pairs[start[i]..start[i + 1]];
+            let mut acc = cur[i];
+            for &(_, j) in row {
+                let v = cur[j as usize];
+                for a in 0..3 {
+                    acc[a] += v[a];
+                }
+            }
+            let w = 1.0 / (row.len() + 1) as f64;
+            *out = acc.map(|x| x * w);
+        }
+        std::mem::swap(&mut cur, &mut next);
+    }
+    cur
 }
 
 /// The weighted centroid and unit normal of the plane through `near` (squared distances and
@@ -210,13 +275,31 @@ mod tests {
             colors: None,
             indices: vec![0, 1, 2, 1, 3, 2],
         };
-        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0 });
+        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0 });
         assert_eq!((r.moved, r.kept), (3, 1));
         for v in &mesh.positions[..3] {
             assert!((v[2] - 0.1).abs() < 1e-6, "{v:?}");
         }
         assert_eq!(mesh.positions[3], [5.0, 5.0, 5.0], "beyond reach: unchanged");
         assert!((r.mean_shift - 3.0).abs() < 1e-3, "{}", r.mean_shift);
+    }
+
+    #[test]
+    fn the_neighbourhood_follows_the_point_count() {
+        let at = |n| {
+            let o = FitOptions::for_points(n);
+            (o.k, o.smoothing)
+        };
+        assert_eq!([at(500), at(3000), at(10_000), at(1_000_000)], [(8, 10), (11, 4), (20, 0), (32, 0)]);
+    }
+
+    #[test]
+    fn moves_are_averaged_over_mesh_neighbours() {
+        // One triangle and a lone vertex: the triangle's moves mix, the lone one keeps its own.
+        let moves = [[3.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 6.0, 0.0]];
+        let once = smooth(&moves, &[0, 1, 2, 0, 2, 1], 1);
+        assert_eq!(once, vec![[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 6.0, 0.0]]);
+        assert_eq!(smooth(&moves, &[0, 1, 2], 0), moves.to_vec());
     }
 
     #[test]
@@ -231,7 +314,7 @@ mod tests {
             colors: None,
             indices: vec![],
         };
-        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0 });
+        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0 });
         assert_eq!((r.moved, r.kept), (0, 1));
         assert_eq!(mesh.positions[0], [0.01, 0.05, 0.05]);
     }
