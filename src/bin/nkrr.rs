@@ -242,10 +242,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         }
     }
     if let Some(f) = &rec.fit {
-        eprintln!(
-            "fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone, {} folds avoided",
-            f.moved, f.mean_shift, f.kept, f.folds_avoided
-        );
+        eprintln!("fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone", f.moved, f.mean_shift, f.kept);
     }
     for n in &rec.notices {
         eprintln!("notice: {n}");

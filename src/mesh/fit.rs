@@ -30,10 +30,6 @@ pub struct FitReport {
     pub kept: usize,
     /// Mean distance a moved vertex travelled, in units of the cloud's mean spacing.
     pub mean_shift: f64,
-    /// Triangles that the moves would have turned over (marching cubes makes many slivers, and
-    /// two corners moving onto slightly different planes can fold one), whose corners' moves
-    /// were shortened until they did not.
-    pub folds_avoided: usize,
 }
 
 /// How the fit chooses its neighbourhoods.
@@ -100,8 +96,7 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
             }
         }
     }
-    let mut moves = smooth(&moves, &mesh.indices, opts.smoothing);
-    report.folds_avoided = unfold(&mesh.positions, &mesh.indices, &mut moves);
+    let moves = smooth(&moves, &mesh.indices, opts.smoothing);
     let mut shift = 0.0f64;
     for (v, d) in mesh.positions.iter_mut().zip(&moves) {
         shift += dot(*d, *d).sqrt();
@@ -110,48 +105,6 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     report.mean_shift = if report.moved > 0 && spacing > 0.0 { shift / report.moved as f64 / spacing } else { 0.0 };
     mesh.compute_vertex_normals();
     report
-}
-
-/// Shortens `moves` where they would turn a triangle of `indices` over (its normal after the
-/// move pointing against its normal before): the corners of each such triangle move half as far,
-/// up to four times, then not at all. Returns how many triangles would have folded.
-fn unfold(positions: &[[f32; 3]], indices: &[u32], moves: &mut [[f64; 3]]) -> usize {
-    let normal = |t: &[u32], shift: Option<&[[f64; 3]]>| {
-        let p = |i: u32| {
-            let v = positions[i as usize].map(f64::from);
-            match shift {
-                Some(m) => [0, 1, 2].map(|a| v[a] + m[i as usize][a]),
-                None => v,
-            }
-        };
-        let (a, b, c) = (p(t[0]), p(t[1]), p(t[2]));
-        let (u, w) = (sub(b, a), sub(c, a));
-        [u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]]
-    };
-    let folded = |moves: &[[f64; 3]]| -> Vec<usize> {
-        indices
-            .chunks_exact(3)
-            .enumerate()
-            .filter(|(_, t)| dot(normal(t, None), normal(t, Some(moves))) < 0.0)
-            .map(|(i, _)| i)
-            .collect()
-    };
-    let mut bad = folded(moves);
-    let first = bad.len();
-    for round in 0..5 {
-        if bad.is_empty() {
-            break;
-        }
-        let factor = if round < 4 { 0.5 } else { 0.0 };
-        let mut corners: Vec<u32> = bad.iter().flat_map(|&t| indices[3 * t..3 * t + 3].iter().copied()).collect();
-        corners.sort_unstable();
-        corners.dedup();
-        for v in corners {
-            moves[v as usize] = moves[v as usize].map(|x| x * factor);
-        }
-        bad = folded(moves);
-    }
-    first
 }
 
 /// Planes more than about 75° from the mesh's own normal are not used (see the module docs).
@@ -347,20 +300,6 @@ mod tests {
         let once = smooth(&moves, &[0, 1, 2, 0, 2, 1], 1);
         assert_eq!(once, vec![[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 6.0, 0.0]]);
         assert_eq!(smooth(&moves, &[0, 1, 2], 0), moves.to_vec());
-    }
-
-    #[test]
-    fn moves_that_would_fold_a_triangle_are_shortened() {
-        // A triangle in z = 0 facing +z; moving a corner across the opposite edge (y = 0) would
-        // turn it over: the move is halved until it does not.
-        let positions = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
-        let mut moves = [[0.0; 3], [0.0; 3], [0.0, -1.6, 0.0]];
-        assert_eq!(unfold(&positions, &[0, 1, 2], &mut moves), 1);
-        // Halved once, the third corner stays above the opposite edge (y = 0.2).
-        assert_eq!(moves[2], [0.0, -0.8, 0.0]);
-        let mut fine = [[0.0; 3], [0.0; 3], [0.3, 0.0, 0.0]];
-        assert_eq!(unfold(&positions, &[0, 1, 2], &mut fine), 0);
-        assert_eq!(fine[2], [0.3, 0.0, 0.0]);
     }
 
     #[test]
