@@ -124,7 +124,8 @@ async function openFile(file, source = null) {
       textContent: `The view shows ${fmt.format(viewer.drawn_points)} of the points (an even subsample).`,
     }));
   }
-  $('show-mesh').disabled = true;
+  // No mesh yet: its box is off and disabled until one arrives.
+  Object.assign($('show-mesh'), { disabled: true, checked: false });
   $('show-wire').disabled = true;
   // An even subsample of at most 100k points stays on the page for the live trim.
   const points = cloud.sample_positions(100_000);
@@ -288,7 +289,7 @@ function onDone(r) {
   } catch (e) {
     notShown = e.message ?? String(e);
   }
-  $('show-mesh').disabled = false;
+  Object.assign($('show-mesh'), { disabled: false, checked: true });
   $('show-wire').disabled = false;
   applyVisibility();
   requestRender();

@@ -5,9 +5,11 @@
 import { $, fmt, secs, setItems } from './util.js';
 import { mark } from './test-hooks.js';
 
-/** One line about nkrr's tuning: "n 2,048, m 500; 100 steps (max steps), best at 97; loss a → b". */
+/** One line about nkrr's tuning: "n 2,048, m 500; 100 steps (max steps), kept step 97 (lowest
+ *  training error); loss a → b". The kept parameters are the paper's choice: those with the lowest
+ *  training error, not the lowest loss, which is why the kept step need not be the last. */
 export function tuningSummary(t) {
-  return `n ${fmt.format(t.n)}, m ${t.m}; ${t.stepsRun} steps (${t.stop}), best at ${t.bestStep}; ` +
+  return `n ${fmt.format(t.n)}, m ${t.m}; ${t.stepsRun} steps (${t.stop}), kept step ${t.bestStep} (lowest training error); ` +
     `loss ${t.initialLoss.toPrecision(4)} → ${t.finalLoss.toPrecision(4)}`;
 }
 

@@ -34,6 +34,8 @@ for (const size of SIZES) {
       const run = await rect('#run');
       assert.ok(inside(run), `Reconstruct is out of the window: ${JSON.stringify(run)}`);
       assert.equal(await page.isEnabled('#run'), true);
+      // No mesh yet: its view box is neither checked nor usable.
+      assert.deepEqual(await page.$eval('#show-mesh', (e) => [e.checked, e.disabled]), [false, true]);
       const dock = await rect('.dock');
       assert.ok(inside(dock), `the message dock is out of the window: ${JSON.stringify(dock)}`);
       const view = await rect('#view');
