@@ -350,8 +350,11 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
 /// `bytes` written to `path` so that a failed write leaves an existing file as it was
 /// ([`nkrr::io::atomic`]).
 fn write_file(path: &str, bytes: &[u8]) -> Result<(), Failure> {
-    nkrr::io::atomic::write_atomic(std::path::Path::new(path), bytes)
-        .map_err(|e| fail(format!("cannot write {path}: {e} (an existing {path} is left as it was)")))
+    nkrr::io::atomic::write_atomic(std::path::Path::new(path), bytes).map_err(|e| {
+        // A device or pipe is written directly (see nkrr::io::atomic): nothing there is kept.
+        let kept = std::fs::metadata(path).is_ok_and(|m| m.is_file());
+        fail(format!("cannot write {path}: {e}{}", if kept { format!(" (the existing {path} is left as it was)") } else { String::new() }))
+    })
 }
 
 fn value(it: &mut std::slice::Iter<String>, name: &str) -> Result<String, Failure> {
