@@ -226,3 +226,13 @@ fn reconstruct_writes_ply_obj_and_stl_by_extension() {
     assert!(stderr.contains(".glb, .ply, .obj or .stl"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn no_graphics_stack_noise_without_xdg_runtime_dir() {
+    // Root in a container and CI runners often have no XDG_RUNTIME_DIR; the run succeeds, so
+    // nothing on stderr may read like an error.
+    let out = Command::new(env!("CARGO_BIN_EXE_nkrr")).arg("gpu").env_remove("XDG_RUNTIME_DIR").output().expect("run nkrr");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
+}

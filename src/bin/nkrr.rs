@@ -40,7 +40,54 @@ fn usage_text() -> String {
     USAGE.replace("{OPTIONS}", &nkrr::settings::usage())
 }
 
+/// `s` with control characters shown escaped (`\x1b`, `\u{9b}`), except newline and tab:
+/// names, comments and messages that come from a file reach a terminal, and a raw ESC or BEL
+/// there can clear it, set its title or fake output. Every line the CLI prints goes through it.
+fn shown(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c as u32 {
+            0x0a | 0x09 => out.push(c),
+            n @ (0..=0x1f | 0x7f) => out.push_str(&format!("\\x{n:02x}")),
+            n @ 0x80..=0x9f => out.push_str(&format!("\\u{{{n:x}}}")),
+            _ => out.push(c),
+        }
+    }
+    out
+}
+
+/// `println!` through [`shown`].
+macro_rules! say {
+    ($($t:tt)*) => { println!("{}", shown(&format!($($t)*))) };
+}
+
+/// `eprintln!` through [`shown`].
+macro_rules! tell {
+    ($($t:tt)*) => { eprintln!("{}", shown(&format!($($t)*))) };
+}
+
+/// At most this many of a file's header comments are listed by `info`; the rest are counted.
+const COMMENTS_SHOWN: usize = 10;
+/// A listed comment or property list is cut after this many characters.
+const LINE_CHARS: usize = 300;
+
+/// `s` cut to [`LINE_CHARS`] characters, saying how many were left out.
+fn bounded(s: &str) -> String {
+    match s.char_indices().nth(LINE_CHARS) {
+        None => s.to_string(),
+        Some((i, _)) => format!("{}… ({} more characters)", &s[..i], s[i..].chars().count()),
+    }
+}
+
 fn main() -> ExitCode {
+    // A file-size limit (`ulimit -f`) kills with SIGXFSZ by default, mid-write and without a
+    // word; ignored, the write fails with EFBIG, which is reported like a full disk.
+    #[cfg(unix)]
+    // SAFETY: setting a standard signal's disposition to "ignore" before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
+    let runtime_dir = private_runtime_dir();
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.first().map(String::as_str) {
         Some("info") => info(&args[1..]),
@@ -54,19 +101,46 @@ fn main() -> ExitCode {
             Ok(())
         }
         Some("-V" | "--version") => {
-            println!("nkrr {}", env!("CARGO_PKG_VERSION"));
+            say!("nkrr {}", env!("CARGO_PKG_VERSION"));
             Ok(())
         }
         Some(other) => Err(usage(&format!("unknown command '{other}'"))),
         None => Err(usage("no command given")),
     };
+    if let Some(d) = runtime_dir {
+        let _ = std::fs::remove_dir(d);
+    }
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(Failure { message, code }) => {
-            eprintln!("nkrr: {message}");
+            tell!("nkrr: {message}");
             ExitCode::from(code)
         }
     }
+}
+
+/// Where `XDG_RUNTIME_DIR` is unset (root in a container, CI), points it at a new, empty,
+/// private folder (removed at the end of `main`), and returns that folder.
+///
+/// Why: Mesa's Vulkan device-selection layer (`VK_LAYER_MESA_device_select`, an implicit layer
+/// loaded into every Vulkan instance) probes for a Wayland compositor while wgpu enumerates
+/// adapters, and libwayland prints "error: XDG_RUNTIME_DIR is invalid or not set in the
+/// environment." twice to stderr when the variable is unset, before a run that then succeeds.
+/// With the variable set, the probe finds no socket in the empty folder and stays silent; the
+/// layer and the adapter choice are otherwise unchanged (disabling the layer with
+/// `NODEVICE_SELECT` would also drop a user's `MESA_VK_DEVICE_SELECT`). Set before any thread
+/// starts, as changing the environment requires.
+fn private_runtime_dir() -> Option<std::path::PathBuf> {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_some() {
+        return None;
+    }
+    let dir = std::env::temp_dir().join(format!("nkrr-runtime-{}", std::process::id()));
+    let mut builder = std::fs::DirBuilder::new();
+    #[cfg(unix)]
+    std::os::unix::fs::DirBuilderExt::mode(&mut builder, 0o700);
+    builder.create(&dir).ok()?;
+    std::env::set_var("XDG_RUNTIME_DIR", &dir);
+    Some(dir)
 }
 
 struct Failure {
@@ -103,24 +177,24 @@ fn info(args: &[String]) -> Result<(), Failure> {
     let path = path.ok_or_else(|| usage("info needs a cloud file"))?;
     let (bytes, scan) = read_scan(&path)?;
     let cloud = &scan.cloud;
-    println!("file:       {path} ({} bytes)", bytes.len());
-    println!("format:     {}", scan.layout);
-    println!("points:     {} (in the file: {})", cloud.len(), scan.declared);
+    say!("file:       {path} ({} bytes)", bytes.len());
+    say!("format:     {}", scan.layout);
+    say!("points:     {} (in the file: {})", cloud.len(), scan.declared);
     if let Some(b) = cloud.bounds() {
         let e = b.extent();
         if cloud.origin != [0.0; 3] {
             let o = cloud.origin;
-            println!("origin:     [{}, {}, {}] (far-off coordinates: positions are stored relative to it)", o[0], o[1], o[2]);
+            say!("origin:     [{}, {}, {}] (far-off coordinates: positions are stored relative to it)", o[0], o[1], o[2]);
             let (lo, hi) = (b.min.map(f64::from), b.max.map(f64::from));
             let (lo, hi) = ([0, 1, 2].map(|a| lo[a] + o[a]), [0, 1, 2].map(|a| hi[a] + o[a]));
-            println!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
+            say!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
         } else {
-            println!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]);
+            say!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]);
         }
-        println!("extent:     {} x {} x {}", e[0], e[1], e[2]);
+        say!("extent:     {} x {} x {}", e[0], e[1], e[2]);
         let g = scan.units_guess();
         let given = settings.units.map(|u| format!("{u} (given)"));
-        println!(
+        say!(
             "units:      {}: {}",
             given.unwrap_or_else(|| match (scan.stated_units, g.units) {
                 (Some(u), _) => u.to_string(),
@@ -132,10 +206,10 @@ fn info(args: &[String]) -> Result<(), Failure> {
     }
     if let Some(ply) = &scan.ply {
         let props: Vec<String> = ply.vertex_properties.iter().map(|p| format!("{} {}", p.kind, p.name)).collect();
-        println!("properties: {}", props.join(", "));
+        say!("properties: {}", bounded(&props.join(", ")));
     }
     let zeros = scan.zero_normals();
-    println!(
+    say!(
         "normals:    {}",
         match (&cloud.normals, zeros) {
             (None, _) => "no (not needed: nkrr needs no normals, oriented or not)".to_string(),
@@ -143,13 +217,16 @@ fn info(args: &[String]) -> Result<(), Failure> {
             (Some(_), z) => format!("yes, {z} of them zero (not needed: nkrr ignores them)"),
         }
     );
-    println!("colours:    {}", if cloud.colors.is_some() { "yes (carried to the mesh's vertices)" } else { "no" });
-    for c in &scan.comments {
-        println!("comment:    {c}");
+    say!("colours:    {}", if cloud.colors.is_some() { "yes (carried to the mesh's vertices)" } else { "no" });
+    for c in scan.comments.iter().take(COMMENTS_SHOWN) {
+        say!("comment:    {}", bounded(c));
+    }
+    if scan.comments.len() > COMMENTS_SHOWN {
+        say!("comment:    … and {} more comments", scan.comments.len() - COMMENTS_SHOWN);
     }
     preflight(cloud, &settings);
     for w in scan.warnings() {
-        println!("warning:    {w}");
+        say!("warning:    {w}");
     }
     Ok(())
 }
@@ -161,20 +238,20 @@ fn preflight(cloud: &nkrr::cloud::PointCloud, settings: &Settings) {
         Ok(gpu) => (nkrr::plan::DeviceFacts::of(&gpu), gpu.info.name.clone()),
         Err(e) => (nkrr::plan::DeviceFacts::webgpu_default(), format!("none ({e}); WebGPU's default limits assumed")),
     };
-    println!("adapter:    {adapter}");
+    say!("adapter:    {adapter}");
     let config = match nkrr::net::NetConfig::prior() {
         Ok(c) => c,
-        Err(e) => return println!("memory:     no estimate: the built-in prior does not load ({e})"),
+        Err(e) => return say!("memory:     no estimate: the built-in prior does not load ({e})"),
     };
     let plan = nkrr::plan::memory_plan(cloud.len(), cloud.colors.is_some(), settings, &config, &limits);
     for line in plan.lines() {
-        println!("memory:     {line}");
+        say!("memory:     {line}");
     }
 }
 
 fn gpu() -> Result<(), Failure> {
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
-    println!("{}", gpu.describe());
+    say!("{}", gpu.describe());
     Ok(())
 }
 
@@ -198,22 +275,24 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     use nkrr::io::mesh_out::{self, MeshFormat};
     let format = MeshFormat::from_path(&output)
         .ok_or_else(|| usage(&format!("-o {output}: the extension must be .glb, .ply, .obj or .stl")))?;
+    // Before any work: a bad output path found after minutes of reconstruction wastes them.
+    nkrr::io::atomic::check_output(std::path::Path::new(&output)).map_err(|e| fail(format!("-o {output}: {e}")))?;
 
     let t0 = nkrr::gpu::now();
     let (bytes, parsed) = read_scan(&input)?;
     drop(bytes);
     for w in parsed.warnings() {
-        eprintln!("warning: {w}");
+        tell!("warning: {w}");
     }
-    eprintln!("read {} points from {input} ({})", parsed.cloud.len(), parsed.layout);
+    tell!("read {} points from {input} ({})", parsed.cloud.len(), parsed.layout);
     if settings.units.is_none() {
         let g = parsed.units_guess();
         if g.warn {
-            eprintln!("warning: no --units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): pass --units mm if they are millimetres", g.reason);
+            tell!("warning: no --units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): pass --units mm if they are millimetres", g.reason);
         }
     }
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
-    eprintln!("GPU: {}", gpu.info.name);
+    tell!("GPU: {}", gpu.info.name);
     let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
     let mut last = String::new();
     let mut report = |s: &Stage| {
@@ -225,7 +304,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             Stage::Done => "done".to_string(),
         };
         if line != last {
-            eprintln!("{line}");
+            tell!("{line}");
             last = line;
         }
         true
@@ -233,30 +312,30 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     let rec = pollster::block_on(engine.reconstruct(&parsed.cloud, &settings, &mut report))
         .map_err(|e| fail(format!("{input}: {e}")))?;
     if let Some(t) = &rec.tuning {
-        eprintln!(
+        tell!(
             "tuning ({}): n {} m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e} (best at step {})",
             t.backend, t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit, t.best_step
         );
         if let Some(p) = &t.phases {
-            eprintln!("tuning phases over {} evaluations: {}", t.evaluations, p.summary());
+            tell!("tuning phases over {} evaluations: {}", t.evaluations, p.summary());
         }
     }
     if let Some(f) = &rec.fit {
-        eprintln!("fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone", f.moved, f.mean_shift, f.kept);
+        tell!("fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone", f.moved, f.mean_shift, f.kept);
     }
     for n in &rec.notices {
-        eprintln!("notice: {n}");
+        tell!("notice: {n}");
     }
     let name = std::path::Path::new(&input).file_stem().map(|s| s.to_string_lossy().into_owned());
     let comment = format!("nkrr {} from {input}", env!("CARGO_PKG_VERSION"));
     if let (Some(o), false) = (rec.translation(), format == MeshFormat::Glb) {
-        eprintln!("warning: {output} stores f32 positions with the offset {o:?} added (use .glb to keep full precision)");
+        tell!("warning: {output} stores f32 positions with the offset {o:?} added (use .glb to keep full precision)");
     }
     let mesh_out::Written { bytes, vertices, triangles } = mesh_out::write(format, &rec.mesh, name, rec.translation(), &comment)
         .map_err(|e| fail(format!("writing {output}: {e}")))?;
-    std::fs::write(&output, &bytes).map_err(|e| fail(format!("cannot write {output}: {e}")))?;
+    write_file(&output, &bytes)?;
     let times: Vec<String> = rec.timings.iter().map(|(s, t)| format!("{s} {t:.2}s")).collect();
-    println!(
+    say!(
         "{output}: {} vertices, {} triangles, watertight: {}; {} (total {:.2}s); {} field evaluations",
         vertices,
         triangles,
@@ -266,6 +345,16 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         rec.extract.refine.evaluations,
     );
     Ok(())
+}
+
+/// `bytes` written to `path` so that a failed write leaves an existing file as it was
+/// ([`nkrr::io::atomic`]).
+fn write_file(path: &str, bytes: &[u8]) -> Result<(), Failure> {
+    nkrr::io::atomic::write_atomic(std::path::Path::new(path), bytes).map_err(|e| {
+        // A device or pipe is written directly (see nkrr::io::atomic): nothing there is kept.
+        let kept = std::fs::metadata(path).is_ok_and(|m| m.is_file());
+        fail(format!("cannot write {path}: {e}{}", if kept { format!(" (the existing {path} is left as it was)") } else { String::new() }))
+    })
 }
 
 fn value(it: &mut std::slice::Iter<String>, name: &str) -> Result<String, Failure> {
@@ -331,17 +420,17 @@ fn bench(args: &[String]) -> Result<(), Failure> {
         }
     }
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
-    println!("adapter: {}", gpu.describe());
+    say!("adapter: {}", gpu.describe());
     let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
     if settings.method == Method::Network {
         ms = vec![0];
     }
-    println!("method {:?}, {} Adam steps, resolution {}", settings.method, settings.steps, settings.resolution);
-    println!("Per objective evaluation (ms): kernel = K_nm blocks + A = K_nm^T K_nm on the GPU; solve = the f64 m x m");
-    println!("algebra on the CPU (Cholesky solves, traces, W, G_mm); gradient = residual + G_nm o K_nm pass + reductions");
-    println!("on the GPU; readback = device-to-host copies. mesh = field evaluations + marching cubes.");
-    println!("| points | m | features s | pairs s | tuning s | evals | s/eval | kernel ms | solve ms | gradient ms | readback ms | mesh s | total s | field evals |");
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    say!("method {:?}, {} Adam steps, resolution {}", settings.method, settings.steps, settings.resolution);
+    say!("Per objective evaluation (ms): kernel = K_nm blocks + A = K_nm^T K_nm on the GPU; solve = the f64 m x m");
+    say!("algebra on the CPU (Cholesky solves, traces, W, G_mm); gradient = residual + G_nm o K_nm pass + reductions");
+    say!("on the GPU; readback = device-to-host copies. mesh = field evaluations + marching cubes.");
+    say!("| points | m | features s | pairs s | tuning s | evals | s/eval | kernel ms | solve ms | gradient ms | readback ms | mesh s | total s | field evals |");
+    say!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for &n in &sizes {
         let cloud = synthetic_torus(n, 0.005, n as u64);
         for &m in &ms {
@@ -358,7 +447,7 @@ fn bench(args: &[String]) -> Result<(), Failure> {
                 Some(p) if evals > 0 => format!("{:.1}", f(&p) * 1e3 / evals as f64),
                 _ => "-".into(),
             };
-            println!(
+            say!(
                 "| {n} | {m} | {:.2} | {:.2} | {:.2} | {evals} | {:.3} | {} | {} | {} | {} | {:.2} | {:.2} | {} |",
                 t("features"), t("pairs"), t("tuning"), per_eval,
                 ms(|p| p.kernel + p.gram), ms(|p| p.cpu_algebra), ms(|p| p.grad_pass), ms(|p| p.readback),
@@ -390,7 +479,8 @@ fn json_str(s: &str) -> String {
         match c {
             '"' => out.push_str("\\\""),
             '\\' => out.push_str("\\\\"),
-            c if (c as u32) < 0x20 => out.push_str(&format!("\\u{:04x}", c as u32)),
+            // C1 controls too, so that a line through `shown` stays valid JSON.
+            c if (c as u32) < 0x20 || (0x7f..=0x9f).contains(&(c as u32)) => out.push_str(&format!("\\u{:04x}", c as u32)),
             c => out.push(c),
         }
     }
@@ -439,9 +529,9 @@ fn metrics(args: &[String]) -> Result<(), Failure> {
     for r in recons {
         let scored = load_mesh(r).and_then(|m| gt.evaluate(&m).map_err(|e| fail(format!("{r}: {e}"))));
         match scored {
-            Ok(m) => println!("{{\"gt\": {}, \"recon\": {}, {}}}", json_str(gt_path), json_str(r), metrics_json(&m)),
+            Ok(m) => say!("{{\"gt\": {}, \"recon\": {}, {}}}", json_str(gt_path), json_str(r), metrics_json(&m)),
             Err(f) => {
-                eprintln!("nkrr: {}", f.message);
+                tell!("nkrr: {}", f.message);
                 failed = Some(f.code);
             }
         }
@@ -495,6 +585,11 @@ fn eval(args: &[String]) -> Result<(), Failure> {
         .iter()
         .map(|m| nkrr::eval::variant_settings(m, &base).map(|s| (m.clone(), s)).map_err(|e| usage(&e)))
         .collect::<Result<_, _>>()?;
+    // Before any work, like `reconstruct -o`: the reports (and kept meshes) go beside PREFIX.
+    for ext in ["md", "json"] {
+        let file = format!("{out}.{ext}");
+        nkrr::io::atomic::check_output(std::path::Path::new(&file)).map_err(|e| fail(format!("--out {out}: cannot write {file}: {e}")))?;
+    }
     let entries = std::fs::read_dir(&dir).map_err(|e| fail(format!("cannot read directory {dir}: {e}")))?;
     let mut found: Vec<String> = entries
         .filter_map(|e| e.ok()?.file_name().to_str()?.strip_suffix(".obj").map(str::to_string))
@@ -513,7 +608,7 @@ fn eval(args: &[String]) -> Result<(), Failure> {
 
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
     let adapter = gpu.info.name.clone();
-    eprintln!("GPU: {adapter}");
+    tell!("GPU: {adapter}");
     let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
     let mut runs: Vec<EvalRun> = Vec::new();
     let mut gt_cache: Option<(String, Result<nkrr::eval::GroundTruth, String>)> = None;
@@ -542,7 +637,7 @@ fn eval(args: &[String]) -> Result<(), Failure> {
                     let opts = nkrr::io::gltf::GlbOptions { translation: rec.translation(), ..Default::default() };
                     let glb = nkrr::io::gltf::write_glb(&rec.mesh, &opts).map_err(|e| e.to_string())?;
                     let file = format!("{out}-{shape}-{size}-{method}.glb");
-                    std::fs::write(&file, glb).map_err(|e| format!("cannot write {file}: {e}"))?;
+                    write_file(&file, &glb).map_err(|f| f.message)?;
                 }
                 let t1 = nkrr::gpu::now();
                 // Scored in the ground truth's (user) coordinates: far-off clouds come back
@@ -560,7 +655,7 @@ fn eval(args: &[String]) -> Result<(), Failure> {
                 Ok(m)
             });
             match &result {
-                Ok(m) => eprintln!(
+                Ok(m) => tell!(
                     "{shape}-{size} {method}: CD1x100 {:.4}, F {:.4}, NC {:.4}, IoU {}, {:.1}s",
                     m.cd1x100(),
                     m.fscore,
@@ -568,14 +663,14 @@ fn eval(args: &[String]) -> Result<(), Failure> {
                     m.iou.map_or("-".into(), |v| format!("{v:.4}")),
                     nkrr::gpu::now() - t0
                 ),
-                Err(e) => eprintln!("{shape}-{size} {method}: failed: {e}"),
+                Err(e) => tell!("{shape}-{size} {method}: failed: {e}"),
             }
             runs.push(EvalRun { shape: shape.clone(), size: size.clone(), method: method.clone(), result, times });
             // Rewritten after every run, so an interrupted evaluation keeps what it has.
             write_eval_reports(&out, &dir, &adapter, &base, &sizes, &variants, &runs)?;
         }
     }
-    println!("wrote {out}.md and {out}.json ({} runs)", runs.len());
+    say!("wrote {out}.md and {out}.json ({} runs)", runs.len());
     Ok(())
 }
 
@@ -670,7 +765,7 @@ fn write_eval_reports(
         );
     }
     js += "\n]}\n";
-    std::fs::write(format!("{out}.md"), md).map_err(|e| fail(format!("cannot write {out}.md: {e}")))?;
-    std::fs::write(format!("{out}.json"), js).map_err(|e| fail(format!("cannot write {out}.json: {e}")))?;
+    write_file(&format!("{out}.md"), md.as_bytes())?;
+    write_file(&format!("{out}.json"), js.as_bytes())?;
     Ok(())
 }

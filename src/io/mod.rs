@@ -1,6 +1,8 @@
 //! Reading clouds and meshes, writing meshes. Every reader returns a `Result` whose error says
 //! what is wrong and where; none of them panics or allocates more than the input can justify.
 
+#[cfg(not(target_arch = "wasm32"))]
+pub mod atomic;
 mod builder;
 mod bytes;
 pub mod gltf;
