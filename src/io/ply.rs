@@ -468,6 +468,17 @@ fn is_space(b: u8) -> bool {
     matches!(b, b' ' | b'\t' | b'\r' | b'\n' | 0x0b | 0x0c)
 }
 
+/// The UTF-8 byte-order mark, accepted before a PLY header's magic.
+pub const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
+
+/// Whether `bytes` (after any BOM) start with the PLY magic line: `ply` in any case, then a
+/// line break or the end of the bytes.
+pub fn has_magic(bytes: &[u8]) -> bool {
+    bytes.len() >= 3
+        && bytes[..3].eq_ignore_ascii_case(b"ply")
+        && matches!(bytes.get(3), None | Some(b'\n' | b'\r'))
+}
+
 /// Parses and validates the header. Needs only the bytes up to and including the `end_header`
 /// line, so it can be called on a prefix of a large file (a prefix that cuts the header short
 /// gives [`PlyError::MissingEndHeader`]: read more); it therefore does not check declared
@@ -483,7 +494,12 @@ pub fn read_ply_header(bytes: &[u8]) -> Result<PlyHeader, PlyError> {
     let mut comments = Vec::new();
     let mut obj_info = Vec::new();
 
-    if !bytes.starts_with(b"ply") {
+    // A UTF-8 byte-order mark (some Windows editors add one) and `PLY` in capitals are
+    // accepted: the rest of the file decides, and refusing them read such files as text.
+    if bytes.starts_with(UTF8_BOM) {
+        pos = UTF8_BOM.len();
+    }
+    if !has_magic(&bytes[pos..]) {
         return Err(PlyError::NotPly); // without scanning a large non-PLY file for a newline
     }
     let body_offset = loop {
@@ -501,7 +517,7 @@ pub fn read_ply_header(bytes: &[u8]) -> Result<PlyHeader, PlyError> {
         // An unterminated last line is a header cut short, unless it is `end_header` itself
         // (a header-only prefix, or a file whose body is empty).
         if !terminated && line.trim_ascii() != b"end_header" {
-            if line_no == 1 && line.trim_ascii() != b"ply" {
+            if line_no == 1 && !line.trim_ascii().eq_ignore_ascii_case(b"ply") {
                 return Err(PlyError::NotPly);
             }
             return Err(PlyError::MissingEndHeader { lines: line_no - 1 });
@@ -514,7 +530,7 @@ pub fn read_ply_header(bytes: &[u8]) -> Result<PlyHeader, PlyError> {
         };
 
         if line_no == 1 {
-            if line.trim_ascii() != b"ply" {
+            if !line.trim_ascii().eq_ignore_ascii_case(b"ply") {
                 return Err(PlyError::NotPly);
             }
             continue;
