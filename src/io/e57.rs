@@ -9,7 +9,7 @@
 
 use std::io::Cursor;
 
-use super::builder::CloudBuilder;
+use super::builder::{CloudBuilder, Pushed};
 use super::bytes::u64_at;
 use super::scan_file::{ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
@@ -86,7 +86,9 @@ pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
                 let ch = [c.red, c.green, c.blue].map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8);
                 [ch[0], ch[1], ch[2], 255]
             });
-            out.push([x, y, z], [0.0; 3], c);
+            if let Pushed::TooLarge { axis, value, origin } = out.push([x, y, z], [0.0; 3], c) {
+                return Err(format!("{name}, point {}: {}", read - 1, Pushed::too_large(axis, value, origin)));
+            }
         }
     }
     if out.len() == 0 {

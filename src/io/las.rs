@@ -12,7 +12,7 @@
 
 use std::io::{Cursor, Seek, SeekFrom};
 
-use super::builder::CloudBuilder;
+use super::builder::{CloudBuilder, Pushed};
 use super::bytes::{u16_at, u32_at, u64_at};
 use super::scan_file::{ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
@@ -238,7 +238,10 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
     let mut take = |rec: &[u8], done: &mut u64| -> Result<(), String> {
         let p = ::las::raw::Point::read_from(rec, &format).map_err(|e| format!("point {done}: {e}"))?;
         let before = out.len();
-        out.push([t.x.direct(p.x), t.y.direct(p.y), t.z.direct(p.z)], [0.0; 3], [0, 0, 0, 255]);
+        let pushed = out.push([t.x.direct(p.x), t.y.direct(p.y), t.z.direct(p.z)], [0.0; 3], [0, 0, 0, 255]);
+        if let Pushed::TooLarge { axis, value, origin } = pushed {
+            return Err(format!("point {done}: {}", Pushed::too_large(axis, value, origin)));
+        }
         if let (true, Some(c)) = (out.len() > before, p.color) {
             rgb16.push([c.red, c.green, c.blue]);
         }

@@ -34,7 +34,7 @@
 //! it must not reach the reconstruction either. If every vertex is dropped the cloud is useless
 //! and that is an error ([`PlyError::AllNonFinite`]).
 
-use super::builder::CloudBuilder;
+use super::builder::{CloudBuilder, Pushed};
 use crate::cloud::PointCloud;
 use std::fmt;
 
@@ -345,6 +345,8 @@ pub enum PlyError {
     },
     /// The header declares zero vertices.
     EmptyCloud,
+    /// Vertex `index` has a finite coordinate too large for an `f32`; `message` says which.
+    TooLarge { index: u64, message: String },
     /// Every one of the `count` vertices has a NaN or infinite coordinate.
     AllNonFinite {
         count: u64,
@@ -442,6 +444,7 @@ impl fmt::Display for PlyError {
                  '{property}' has negative count {value}"
             ),
             EmptyCloud => write!(f, "PLY file declares 0 vertices"),
+            TooLarge { index, message } => write!(f, "PLY vertex {index}: {message}"),
             AllNonFinite { count } => write!(
                 f,
                 "all {count} PLY vertices have a NaN or infinite coordinate; nothing to read"
@@ -1168,7 +1171,7 @@ fn color_u8(v: f64, t: ScalarType) -> u8 {
 /// Decodes one vertex's used values into the shared [`CloudBuilder`] (which recentres far-off
 /// clouds and counts vertices with a non-finite position instead of storing them).
 #[inline(always)]
-fn push_vertex(out: &mut CloudBuilder, v: &[f64; NSLOTS], p: &VertexPlan) {
+fn push_vertex(out: &mut CloudBuilder, v: &[f64; NSLOTS], p: &VertexPlan) -> Pushed {
     let normal = if p.has_normals { [v[NX] as f32, v[NX + 1] as f32, v[NX + 2] as f32] } else { [0.0; 3] };
     let colour = if p.has_colors {
         let t = &p.types;
@@ -1177,7 +1180,17 @@ fn push_vertex(out: &mut CloudBuilder, v: &[f64; NSLOTS], p: &VertexPlan) {
     } else {
         [0; 4]
     };
-    out.push([v[X], v[X + 1], v[X + 2]], normal, colour);
+    out.push([v[X], v[X + 1], v[X + 2]], normal, colour)
+}
+
+/// Refuses a vertex whose position an `f32` cannot hold (see [`Pushed`]).
+fn check_pushed(pushed: Pushed, index: u64) -> Result<(), PlyError> {
+    match pushed {
+        Pushed::TooLarge { axis, value, origin } => {
+            Err(PlyError::TooLarge { index, message: Pushed::too_large(axis, value, origin) })
+        }
+        _ => Ok(()),
+    }
 }
 
 fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, usize), PlyError> {
@@ -1206,11 +1219,11 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
                 off += t.size();
             }
         }
-        for rec in src.data()[range].chunks_exact(size) {
+        for (index, rec) in src.data()[range].chunks_exact(size).enumerate() {
             for &(off, t, s) in &used {
                 v[s] = S::decode(&rec[off..], t);
             }
-            push_vertex(&mut out, &v, &p);
+            check_pushed(push_vertex(&mut out, &v, &p), index as u64)?;
         }
     } else {
         for index in 0..e.count {
@@ -1224,7 +1237,7 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
                 };
                 r.map_err(|f| located_src(f, e, index, pi, src))?;
             }
-            push_vertex(&mut out, &v, &p);
+            check_pushed(push_vertex(&mut out, &v, &p), index)?;
         }
     }
     if out.len() == 0 {

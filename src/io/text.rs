@@ -22,7 +22,7 @@
 
 use std::fmt;
 
-use super::builder::CloudBuilder;
+use super::builder::{CloudBuilder, Pushed};
 use super::scan_file::{ScanFile, ScanFormat};
 
 /// Why a text cloud could not be read; `line` is 1-based (0 when it is about the whole file).
@@ -457,7 +457,9 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
                     }
                     _ => [0, 0, 0, 255],
                 };
-                out.push([values[ix], values[iy], values[iz]], n, c);
+                if let Pushed::TooLarge { axis, value, origin } = out.push([values[ix], values[iy], values[iz]], n, c) {
+                    return Err(err(number, Pushed::too_large(axis, value, origin)));
+                }
             }
         }
     }
