@@ -89,12 +89,14 @@ pub const FAR_COORDINATE: f64 = 1e4;
 
 /// The origin a reader should subtract from `f64` coordinates before storing them as `f32`,
 /// chosen from the cloud's first point `first`: per axis, that coordinate rounded to a whole
-/// unit when its magnitude is at least [`FAR_COORDINATE`] (and below 1e15, beyond which it is
-/// taken for garbage rather than a place), else 0, so that ordinary clouds keep their
-/// coordinates as they are. Points near the first then keep `f32` precision relative to the
-/// cloud's size, wherever it lies.
+/// unit when its magnitude is at least [`FAR_COORDINATE`], else 0, so that ordinary clouds
+/// keep their coordinates as they are. Points near the first then keep `f32` precision relative
+/// to the cloud's size, wherever it lies: the difference of two nearby `f64`s is exact, so the
+/// detail the file's `f64` values hold survives at any magnitude (an upper cut at 1e15 once
+/// made such clouds collapse onto a few `f32` values). Beyond 2^52 an `f64` is already a whole
+/// number, and rounding leaves it as it is.
 pub fn origin_for(first: [f64; 3]) -> [f64; 3] {
-    first.map(|c| if (FAR_COORDINATE..1e15).contains(&c.abs()) { c.round() } else { 0.0 })
+    first.map(|c| if c.is_finite() && c.abs() >= FAR_COORDINATE { c.round() } else { 0.0 })
 }
 
 /// The similarity that maps a cloud's positions (relative to its `origin`) to the network's
