@@ -19,9 +19,21 @@ use crate::units::Units;
 
 /// Points decoded at a time: bounds the record buffer whatever the file declares.
 const BATCH: usize = 1 << 16;
-/// Points a compressed file may declare per byte of compressed data. Real LAZ files spend
-/// 1–10 bytes a point; this leaves two orders of magnitude for very regular data.
-const LAZ_POINTS_PER_BYTE: u64 = 64;
+
+/// The most points `after` bytes of LASzip data can hold, from what a chunk really is: every
+/// chunk starts with its first point stored whole (`record_len` bytes; layered chunks add a
+/// count and layer sizes) and holds at most `chunk_size` points, so there are at most
+/// `after / record_len` chunks (rounded up). The arithmetic coder itself can spend far less
+/// than a bit a point on regular data: a flat 1000×1000 grid is 12 KB, 84 points a byte, which
+/// an earlier fixed cap of 64 points a byte called truncated. Variable-size chunks
+/// (`chunk_size` u32::MAX) give no bound beyond [`MAX_COMPRESSED_POINTS`].
+pub fn laz_points_cap(after: u64, record_len: u64, chunk_size: u32) -> u64 {
+    if chunk_size == u32::MAX || chunk_size == 0 {
+        return MAX_COMPRESSED_POINTS;
+    }
+    let chunks = after.div_ceil(record_len.max(1));
+    chunks.saturating_mul(chunk_size as u64).min(MAX_COMPRESSED_POINTS)
+}
 
 /// The public header's fields that bound allocations, checked against the file.
 struct Layout {
@@ -75,11 +87,6 @@ fn check_layout(b: &[u8]) -> Result<Layout, String> {
     if compressed {
         if count > MAX_COMPRESSED_POINTS {
             return Err(format!("the header declares {count} points; nkrr reads at most {MAX_COMPRESSED_POINTS} from a compressed file"));
-        }
-        if count > after.saturating_mul(LAZ_POINTS_PER_BYTE) {
-            return Err(format!(
-                "the header declares {count} compressed points, but only {after} bytes of point data follow byte {offset_to_points}: the file is truncated or its header is wrong"
-            ));
         }
     } else if (count as u128) * (record_len as u128) > after as u128 {
         return Err(format!(
@@ -254,6 +261,17 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
         if layout.format >= 6 {
             check_laz_layers(bytes, &layout, &vlr, record_len)?;
         }
+        let chunk_size = vlr.chunk_size();
+        let after = bytes.len() as u64 - layout.offset_to_points;
+        let cap = laz_points_cap(after, record_len as u64, chunk_size);
+        if count > cap {
+            return Err(format!(
+                "the header declares {count} compressed points, but the {after} bytes of point data after byte {} can \
+                 hold at most {cap} (each LASzip chunk of at most {chunk_size} points starts with one {record_len}-byte \
+                 point stored whole): the file is truncated or its header is wrong",
+                layout.offset_to_points
+            ));
+        }
         let mut d = laz::LasZipDecompressor::new(&mut cur, vlr).map_err(|e| format!("LASzip: {e}"))?;
         // A few MB of records at a time, whatever the record length.
         let batch = (BATCH * 64 / record_len.max(1)).clamp(1, BATCH);
@@ -333,6 +351,17 @@ mod tests {
     use super::*;
 
     /// A minimal LAS 1.2 header for `count` points of format 0 (20 bytes each).
+    #[test]
+    fn the_laz_cap_follows_the_chunks() {
+        // The 1000×1000 grid: 11.5 KB of 20-byte points in chunks of 50000 holds 1M easily.
+        assert!(laz_points_cap(11_500, 20, 50_000) >= 1_000_000);
+        // One chunk's worth of bytes holds at most one chunk.
+        assert_eq!(laz_points_cap(20, 20, 50_000), 50_000);
+        assert_eq!(laz_points_cap(21, 20, 50_000), 100_000);
+        assert_eq!(laz_points_cap(1 << 40, 20, u32::MAX), MAX_COMPRESSED_POINTS);
+        assert_eq!(laz_points_cap(1 << 40, 1, 50_000), MAX_COMPRESSED_POINTS);
+    }
+
     fn header(count: u32, body: usize) -> Vec<u8> {
         let mut b = vec![0u8; 227 + body];
         b[..4].copy_from_slice(b"LASF");
