@@ -272,14 +272,38 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
                 layout.offset_to_points
             ));
         }
-        let mut d = laz::LasZipDecompressor::new(&mut cur, vlr).map_err(|e| format!("LASzip: {e}"))?;
+        let mut d = laz::LasZipDecompressor::new(&mut cur, vlr).map_err(|e| {
+            format!(
+                "LASzip, before the first point: reading the chunk table (its offset at byte {}) failed: the file is \
+                 truncated or its chunk table is damaged ({e})",
+                layout.offset_to_points
+            )
+        })?;
+        // Where a failure happened, in the user's terms: the `laz` crate's own messages ("failed
+        // to fill whole buffer", "logic error") say neither which points nor which bytes.
+        let fixed_chunks = chunk_size != u32::MAX && chunk_size > 0;
+        let file_len = bytes.len();
         // A few MB of records at a time, whatever the record length.
         let batch = (BATCH * 64 / record_len.max(1)).clamp(1, BATCH);
         let mut buf = vec![0u8; batch * record_len];
         while done < count {
             let n = (count - done).min(batch as u64) as usize;
             let chunk = &mut buf[..n * record_len];
-            d.decompress_many(chunk).map_err(|e| format!("LASzip, points {done}..{}: {e}", done + n as u64))?;
+            d.decompress_many(chunk).map_err(|e| {
+                let at = d.get_mut().position();
+                let (first, last) = (done / chunk_size as u64, (done + n as u64 - 1) / chunk_size as u64);
+                let chunk_no = match (fixed_chunks, first == last) {
+                    (false, _) => String::new(),
+                    (true, true) => format!(", in chunk {first} ({chunk_size} points a chunk)"),
+                    (true, false) => format!(", in chunks {first}-{last} ({chunk_size} points a chunk)"),
+                };
+                let why = if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                    format!("the compressed data ends at byte {at} of {file_len} before these points: the file is truncated")
+                } else {
+                    format!("corrupt compressed data near byte {at} of {file_len}")
+                };
+                format!("LASzip, decoding points {done}..{}{chunk_no}: {why} ({e})", done + n as u64)
+            })?;
             for rec in chunk.chunks_exact(record_len) {
                 take(rec, &mut done)?;
             }
