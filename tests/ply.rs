@@ -802,14 +802,17 @@ fn error_not_ply() {
     for bytes in [
         &b""[..],
         b"plx\n",
-        b"PLY\nformat ascii 1.0\n",
-        b"\xef\xbb\xbfply\n",
         b"ply2\n",
         b"\x00\x01",
     ] {
         let e = err(bytes);
         assert_eq!(e, PlyError::NotPly, "{bytes:?}");
         assert_msg(&e, &["not a PLY"]);
+    }
+    // `PLY` in capitals and a UTF-8 BOM before the magic are PLY (issue 16): these headers are
+    // cut short, not "not a PLY".
+    for bytes in [&b"PLY\nformat ascii 1.0\n"[..], b"\xef\xbb\xbfply\n", b"Ply\r\nformat ascii 1.0\r\n"] {
+        assert!(matches!(err(bytes), PlyError::MissingEndHeader { .. }), "{bytes:?}: {:?}", err(bytes));
     }
 }
 
