@@ -15,14 +15,24 @@ pub(crate) enum Pushed {
 }
 
 impl Pushed {
-    /// The message for [`Pushed::TooLarge`] (without the where, which the caller adds).
+    /// The message for [`Pushed::TooLarge`] (without the where, which the caller adds). When
+    /// the origin is not 0 it came from the cloud's first point, which may be the outlier: the
+    /// message says so.
     pub fn too_large(axis: usize, value: f64, origin: f64) -> String {
         let name = ["x", "y", "z"][axis.min(2)];
-        let from = if origin == 0.0 { String::new() } else { format!(" from the cloud's origin {origin}") };
-        format!(
-            "{name} = {value:e} is too large for a 32-bit float (at most about 3.4e38{from}): nkrr keeps \
-             positions as 32-bit floats; is the value or the column wrong?"
-        )
+        if origin == 0.0 {
+            format!(
+                "{name} = {value:e} is too large for a 32-bit float (at most about 3.4e38): nkrr keeps positions as \
+                 32-bit floats; is the value or the column wrong?"
+            )
+        } else {
+            format!(
+                "{name} = {value:e} is {:e} from the cloud's origin ({name} = {origin:e}, taken from the first point), \
+                 too far for a 32-bit float (at most about 3.4e38): nkrr keeps positions as 32-bit floats relative to \
+                 that origin; is this value, or the first point, wrong?",
+                value - origin
+            )
+        }
     }
 }
 

@@ -474,12 +474,18 @@ fn is_space(b: u8) -> bool {
 /// The UTF-8 byte-order mark, accepted before a PLY header's magic.
 pub const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
 
-/// Whether `bytes` (after any BOM) start with the PLY magic line: `ply` in any case, then a
-/// line break or the end of the bytes.
+/// Whether `bytes` (after any BOM) start with the PLY magic line: `ply` in any case, then
+/// spaces or tabs at most, then a line break or the end of the bytes. Looks at 64 bytes at
+/// most, so a large non-PLY file is not scanned for a newline.
 pub fn has_magic(bytes: &[u8]) -> bool {
-    bytes.len() >= 3
-        && bytes[..3].eq_ignore_ascii_case(b"ply")
-        && matches!(bytes.get(3), None | Some(b'\n' | b'\r'))
+    if bytes.len() < 3 || !bytes[..3].eq_ignore_ascii_case(b"ply") {
+        return false;
+    }
+    let rest = &bytes[3..bytes.len().min(64)];
+    match rest.iter().position(|&b| b == b'\n' || b == b'\r') {
+        Some(end) => rest[..end].iter().all(|&b| b == b' ' || b == b'\t'),
+        None => bytes.len() <= 64 && rest.iter().all(|&b| b == b' ' || b == b'\t'),
+    }
 }
 
 /// Parses and validates the header. Needs only the bytes up to and including the `end_header`
