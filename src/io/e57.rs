@@ -14,8 +14,10 @@ use super::bytes::u64_at;
 use super::scan_file::{ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
 
-/// Points an E57 file may declare per byte of file (as for LAZ: two orders of magnitude above
-/// what real scans need).
+/// Points an E57 file may declare per byte of file: two orders of magnitude above what real
+/// scans need. (LAZ had such a cap too, until a flat grid broke it: issue 16. E57's compressed
+/// vectors are bit-packed, not arithmetic-coded, so a coordinate that varies costs at least a
+/// bit; not yet checked against an E57 of a flat grid.)
 const E57_POINTS_PER_BYTE: u64 = 64;
 
 fn check_header(b: &[u8]) -> Result<(), String> {

@@ -298,7 +298,7 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
                     (true, false) => format!(", in chunks {first}-{last} ({chunk_size} points a chunk)"),
                 };
                 let why = if e.kind() == std::io::ErrorKind::UnexpectedEof {
-                    format!("the compressed data ends at byte {at} of {file_len} before these points: the file is truncated")
+                    format!("the compressed data ran out at byte {at} of {file_len}, while decoding these points: the file is truncated")
                 } else {
                     format!("corrupt compressed data near byte {at} of {file_len}")
                 };
