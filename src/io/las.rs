@@ -305,15 +305,16 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
                 format!("LASzip, decoding points {done}..{}{chunk_no}: {why} ({e})", done + n as u64)
             })?;
             for rec in chunk.chunks_exact(record_len) {
-                take(rec, &mut done)?;
+                take(rec, &mut done).map_err(|m| format!("{m} (a record decompressed from LASzip data: corrupt data?)"))?;
             }
         }
     } else {
         // check_layout has bounded count × record_len by the bytes after the header.
         let start = layout.offset_to_points as usize;
         let body = &bytes[start..start + (count * layout.record_len) as usize];
-        for rec in body.chunks_exact(layout.record_len as usize) {
-            take(&rec[..record_len.min(rec.len())], &mut done)?;
+        for (i, rec) in body.chunks_exact(layout.record_len as usize).enumerate() {
+            take(&rec[..record_len.min(rec.len())], &mut done)
+                .map_err(|m| format!("{m} (the {}-byte record at byte {})", layout.record_len, start + i * layout.record_len as usize))?;
         }
     }
     if out.len() == 0 {
