@@ -15,7 +15,9 @@
 //! by `;`, each holding exactly one comma with digits on both sides. Read as ordinary CSV, such
 //! a line is six columns with x = ±0, a cloud that is wrong without a word. Once the dialect is
 //! chosen, a line that does not fit it (a field with two commas, or a comma not between digits)
-//! is refused with its line number rather than guessed at.
+//! is refused with its line number rather than guessed at; so is a first data line with both
+//! `;` and `,` that is not unambiguous (`1,5;2;3,25`: decimal commas on some fields only, or
+//! two separators).
 //! A NUL byte is refused with its byte offset, and a line of more than [`MAX_COLUMNS`] numbers
 //! with its count: both used to end as "not a point cloud" or "no line of numbers", which
 //! pointed nowhere.
@@ -352,8 +354,18 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     // The decimal-comma dialect, decided by the first line that is numbers either way.
     let mut decimal_comma = false;
     for (number, line) in (Lines { text, pos: 0, number: 0 }) {
-        if columns == 0 && !decimal_comma && is_decimal_comma_line(line) {
-            decimal_comma = true;
+        if columns == 0 && !decimal_comma {
+            if is_decimal_comma_line(line) {
+                decimal_comma = true;
+            } else if line.contains(';') && line.contains(',') && matches!(classify_line(line, &mut values, false), Line::Values(_)) {
+                // Numbers separated by both ';' and ',': decimal commas on some fields only
+                // ("1,5;2;3,25") or two separators at once. Either reading may be wrong.
+                return Err(err(
+                    number,
+                    "numbers separated by both ';' and ',': are the commas decimal commas (then every value \
+                     needs one, e.g. 2,0) or separators? nkrr will not guess",
+                ));
+            }
         }
         match classify_line(line, &mut values, decimal_comma) {
             Line::Blank => {}
@@ -607,6 +619,33 @@ mod tests {
         s.push_str("0 0 0\n1 0 0\n0 1 0\n");
         assert_eq!(s.char_indices().find(|(_, c)| *c == '\u{61ca}').map(|(i, _)| i), Some(4095));
         assert_eq!(read(&s).cloud.len(), 3);
+    }
+
+    #[test]
+    fn decimal_commas_only_when_unambiguous() {
+        // Plain CSV, and semicolons with decimal points, are unchanged.
+        assert_eq!(read("1,2,3\n4,5,6\n").cloud.positions, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        assert_eq!(read("1.5;2;3\n4;5;6\n").cloud.positions[0], [1.5, 2.0, 3.0]);
+        // A header, then decimal commas; later lines may hold integers.
+        let f = read("x;y;z\n1,5;2,0;3,25\n4;5,5;6\n");
+        assert_eq!(f.cloud.positions, vec![[1.5, 2.0, 3.25], [4.0, 5.5, 6.0]]);
+        // Decimal commas on some fields only, in the first data line: refused, with the line.
+        let e = read_text(b"x;y;z\n1,5;2;3,25\n").unwrap_err();
+        assert_eq!(e.line, 2);
+        assert!(e.message.contains("will not guess"), "{e}");
+        // A comma that is not between digits, after the dialect is set.
+        let e = read_text(b"1,5;2,5;3,5\n1,;2,5;3,5\n").unwrap_err();
+        assert_eq!(e.line, 2);
+    }
+
+    #[test]
+    fn cr_nul_and_columns() {
+        assert_eq!(read("0 0 0\r1 0 0\r\n0 1 0\n").cloud.len(), 3);
+        let e = read_text(b"0 0 0\r1 0\x00 0\n").unwrap_err();
+        assert_eq!((e.line, e.message.contains("byte 9")), (2, true), "{e}");
+        let wide: String = (0..70).map(|i| format!("{i} ")).collect();
+        let e = read_text(format!("0 0 0\n{wide}\n").as_bytes()).unwrap_err();
+        assert!(e.line == 2 && e.message.contains("70"), "{e}");
     }
 
     #[test]
