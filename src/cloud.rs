@@ -68,6 +68,12 @@ pub enum CloudError {
     TooFewPoints { count: usize, needed: usize },
     /// Every point at one position (or the bounds are not finite).
     Degenerate,
+    /// The points lie on one line: their spread along the second principal axis is `ratio` of
+    /// that along the first.
+    Collinear { ratio: f64 },
+    /// The points lie on one plane: their spread along the third principal axis is `ratio` of
+    /// that along the first.
+    Flat { ratio: f64 },
 }
 
 impl std::fmt::Display for CloudError {
@@ -77,6 +83,17 @@ impl std::fmt::Display for CloudError {
                 write!(f, "the cloud has {count} point(s); a surface needs at least {needed}")
             }
             CloudError::Degenerate => write!(f, "all points are at the same position: there is no surface to reconstruct"),
+            CloudError::Collinear { ratio } => write!(
+                f,
+                "all points lie on one line (whatever its direction: the spread across it is {ratio:.1e} of the spread \
+                 along it): there is no surface to reconstruct"
+            ),
+            CloudError::Flat { ratio } => write!(
+                f,
+                "all points lie on one plane (whatever its tilt: the spread across it is {ratio:.1e} of the spread \
+                 along it): a flat patch encloses nothing, so there is no surface to reconstruct; a scan of a real \
+                 surface has some relief or noise"
+            ),
         }
     }
 }
@@ -89,12 +106,84 @@ pub const FAR_COORDINATE: f64 = 1e4;
 
 /// The origin a reader should subtract from `f64` coordinates before storing them as `f32`,
 /// chosen from the cloud's first point `first`: per axis, that coordinate rounded to a whole
-/// unit when its magnitude is at least [`FAR_COORDINATE`] (and below 1e15, beyond which it is
-/// taken for garbage rather than a place), else 0, so that ordinary clouds keep their
-/// coordinates as they are. Points near the first then keep `f32` precision relative to the
-/// cloud's size, wherever it lies.
+/// unit when its magnitude is at least [`FAR_COORDINATE`], else 0, so that ordinary clouds
+/// keep their coordinates as they are. Points near the first then keep `f32` precision relative
+/// to the cloud's size, wherever it lies: the difference of two nearby `f64`s is exact, so the
+/// detail the file's `f64` values hold survives at any magnitude (an upper cut at 1e15 once
+/// made such clouds collapse onto a few `f32` values). Beyond 2^52 an `f64` is already a whole
+/// number, and rounding leaves it as it is.
 pub fn origin_for(first: [f64; 3]) -> [f64; 3] {
-    first.map(|c| if (FAR_COORDINATE..1e15).contains(&c.abs()) { c.round() } else { 0.0 })
+    first.map(|c| if c.is_finite() && c.abs() >= FAR_COORDINATE { c.round() } else { 0.0 })
+}
+
+/// Spread across a cloud's thinnest principal axis, as a fraction of the spread along its
+/// widest, below which it is taken as flat (and, for the middle axis, as a line). Rounding to
+/// `f32` leaves about 1e-7; a real scan's relief or noise is far above 1e-4.
+pub const FLAT_RATIO: f64 = 1e-4;
+
+/// The standard deviations of `points` along their principal axes, largest first (square
+/// roots of the covariance matrix's eigenvalues, in f64).
+///
+/// Why principal axes: a flatness check on the bounding box only sees clouds flat along x, y
+/// or z; a tilted plane or line has a box of full size on every axis, passed, and came out a
+/// needle-like mesh with exit status 0.
+pub fn principal_spread(points: &[[f32; 3]]) -> [f64; 3] {
+    if points.is_empty() {
+        return [0.0; 3];
+    }
+    let n = points.len() as f64;
+    let mut mean = [0f64; 3];
+    for p in points {
+        for a in 0..3 {
+            mean[a] += p[a] as f64;
+        }
+    }
+    mean = mean.map(|m| m / n);
+    let mut cov = [[0f64; 3]; 3];
+    for p in points {
+        let d = [0, 1, 2].map(|a| p[a] as f64 - mean[a]);
+        for i in 0..3 {
+            for j in 0..3 {
+                cov[i][j] += d[i] * d[j];
+            }
+        }
+    }
+    let cov = cov.map(|row| row.map(|v| v / n));
+    let mut ev = symmetric_eigenvalues(cov).map(|v| v.max(0.0).sqrt());
+    ev.sort_by(|a, b| b.total_cmp(a));
+    ev
+}
+
+/// The eigenvalues of a symmetric 3×3 matrix, by cyclic Jacobi rotations (a few sweeps
+/// converge to f64 precision for a 3×3; the loop is bounded whatever the input).
+fn symmetric_eigenvalues(mut a: [[f64; 3]; 3]) -> [f64; 3] {
+    for _ in 0..64 {
+        let off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+        let diag = a[0][0] * a[0][0] + a[1][1] * a[1][1] + a[2][2] * a[2][2];
+        if !(off > 1e-32 * diag) {
+            break;
+        }
+        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
+            if a[p][q] == 0.0 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            for row in a.iter_mut() {
+                let (kp, kq) = (row[p], row[q]);
+                row[p] = c * kp - s * kq;
+                row[q] = s * kp + c * kq;
+            }
+            for k in 0..3 {
+                let (pk, qk) = (a[p][k], a[q][k]);
+                a[p][k] = c * pk - s * qk;
+                a[q][k] = s * pk + c * qk;
+            }
+        }
+    }
+    [a[0][0], a[1][1], a[2][2]]
 }
 
 /// The similarity that maps a cloud's positions (relative to its `origin`) to the network's
@@ -109,7 +198,8 @@ impl Normalization {
     /// Fewest points accepted for reconstruction.
     pub const MIN_POINTS: usize = 4;
 
-    /// The normalisation of `cloud`, or why it has none.
+    /// The normalisation of `cloud`, or why it has none: too few points, all at one place, or
+    /// all on one line or plane in any orientation (see [`principal_spread`]).
     pub fn of(cloud: &PointCloud) -> Result<Normalization, CloudError> {
         if cloud.len() < Self::MIN_POINTS {
             return Err(CloudError::TooFewPoints { count: cloud.len(), needed: Self::MIN_POINTS });
@@ -119,6 +209,16 @@ impl Normalization {
         let scale = (0..3).map(|a| b.max[a] as f64 - b.min[a] as f64).fold(0.0, f64::max);
         if !(scale > 0.0 && scale.is_finite()) {
             return Err(CloudError::Degenerate);
+        }
+        let spread = principal_spread(&cloud.positions);
+        if spread[0] > 0.0 {
+            let (second, third) = (spread[1] / spread[0], spread[2] / spread[0]);
+            if second <= FLAT_RATIO {
+                return Err(CloudError::Collinear { ratio: second });
+            }
+            if third <= FLAT_RATIO {
+                return Err(CloudError::Flat { ratio: third });
+            }
         }
         Ok(Normalization { center, scale })
     }

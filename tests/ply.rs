@@ -614,7 +614,8 @@ fn non_finite_vertices_are_dropped_and_counted_in_binary() {
         assert_eq!(r.info.vertex_count, 4);
         assert_eq!(r.cloud.positions, vec![[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]]);
     }
-    // A double too large for f32 becomes infinite and is dropped too.
+    // A finite double too far from the origin for an f32 is refused, saying so (issue 16: it
+    // was dropped as "NaN or infinite"). Here the first point, 1e300, is the origin.
     let e = Elem {
         name: "vertex".into(),
         props: ["x", "y", "z"]
@@ -632,9 +633,9 @@ fn non_finite_vertices_are_dropped_and_counted_in_binary() {
                 .collect(),
         ],
     };
-    let r = ok(&write_ply(Fmt::Le, &[e], &Style::default()));
-    assert_eq!(r.info.dropped_non_finite, 1);
-    assert_eq!(r.cloud.positions, vec![[1.0, 2.0, 3.0]]);
+    let e = err(&write_ply(Fmt::Le, &[e], &Style::default()));
+    assert!(matches!(e, PlyError::TooLarge { index: 1, .. }), "{e:?}");
+    assert_msg(&e, &["vertex 1", "too far for a 32-bit float", "first point"]);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -802,14 +803,17 @@ fn error_not_ply() {
     for bytes in [
         &b""[..],
         b"plx\n",
-        b"PLY\nformat ascii 1.0\n",
-        b"\xef\xbb\xbfply\n",
         b"ply2\n",
         b"\x00\x01",
     ] {
         let e = err(bytes);
         assert_eq!(e, PlyError::NotPly, "{bytes:?}");
         assert_msg(&e, &["not a PLY"]);
+    }
+    // `PLY` in capitals and a UTF-8 BOM before the magic are PLY (issue 16): these headers are
+    // cut short, not "not a PLY".
+    for bytes in [&b"PLY\nformat ascii 1.0\n"[..], b"\xef\xbb\xbfply\n", b"Ply\r\nformat ascii 1.0\r\n"] {
+        assert!(matches!(err(bytes), PlyError::MissingEndHeader { .. }), "{bytes:?}: {:?}", err(bytes));
     }
 }
 
@@ -1551,7 +1555,13 @@ proptest! {
         let origin = if wide { nkrr::cloud::origin_for([x[0], y[0], z[0]]) } else { [0.0; 3] };
         let want: Vec<[f32; 3]> =
             (0..n).map(|i| [(x[i] - origin[0]) as f32, (y[i] - origin[1]) as f32, (z[i] - origin[2]) as f32]).collect();
-        // Generated coordinates are finite; only doubles beyond the f32 range become infinite.
+        // Generated coordinates are finite; a double too far from the origin for an f32 makes
+        // the file refused, naming the first such vertex (issue 16).
+        if let Some(i) = want.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+            let e = read_ply(&bytes);
+            prop_assert!(matches!(e, Err(PlyError::TooLarge { index, .. }) if index == i as u64), "{:?}", e);
+            return Ok(());
+        }
         let keep: Vec<bool> = want.iter().map(|p| p.iter().all(|v| v.is_finite())).collect();
         let kept: Vec<[f32; 3]> = want.iter().zip(&keep).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
         if kept.is_empty() {

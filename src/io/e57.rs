@@ -9,13 +9,15 @@
 
 use std::io::Cursor;
 
-use super::builder::CloudBuilder;
+use super::builder::{CloudBuilder, Pushed};
 use super::bytes::u64_at;
 use super::scan_file::{ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
 
-/// Points an E57 file may declare per byte of file (as for LAZ: two orders of magnitude above
-/// what real scans need).
+/// Points an E57 file may declare per byte of file: two orders of magnitude above what real
+/// scans need. (LAZ had such a cap too, until a flat grid broke it: issue 16. E57's compressed
+/// vectors are bit-packed, not arithmetic-coded, so a coordinate that varies costs at least a
+/// bit; not yet checked against an E57 of a flat grid.)
 const E57_POINTS_PER_BYTE: u64 = 64;
 
 fn check_header(b: &[u8]) -> Result<(), String> {
@@ -86,7 +88,9 @@ pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
                 let ch = [c.red, c.green, c.blue].map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8);
                 [ch[0], ch[1], ch[2], 255]
             });
-            out.push([x, y, z], [0.0; 3], c);
+            if let Pushed::TooLarge { axis, value, origin } = out.push([x, y, z], [0.0; 3], c) {
+                return Err(format!("{name}, point {}: {}", read - 1, Pushed::too_large(axis, value, origin)));
+            }
         }
     }
     if out.len() == 0 {

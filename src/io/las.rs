@@ -12,16 +12,28 @@
 
 use std::io::{Cursor, Seek, SeekFrom};
 
-use super::builder::CloudBuilder;
+use super::builder::{CloudBuilder, Pushed};
 use super::bytes::{u16_at, u32_at, u64_at};
 use super::scan_file::{ScanFile, ScanFormat, MAX_COMPRESSED_POINTS};
 use crate::units::Units;
 
 /// Points decoded at a time: bounds the record buffer whatever the file declares.
 const BATCH: usize = 1 << 16;
-/// Points a compressed file may declare per byte of compressed data. Real LAZ files spend
-/// 1–10 bytes a point; this leaves two orders of magnitude for very regular data.
-const LAZ_POINTS_PER_BYTE: u64 = 64;
+
+/// The most points `after` bytes of LASzip data can hold, from what a chunk really is: every
+/// chunk starts with its first point stored whole (`record_len` bytes; layered chunks add a
+/// count and layer sizes) and holds at most `chunk_size` points, so there are at most
+/// `after / record_len` chunks (rounded up). The arithmetic coder itself can spend far less
+/// than a bit a point on regular data: a flat 1000×1000 grid is 12 KB, 84 points a byte, which
+/// an earlier fixed cap of 64 points a byte called truncated. Variable-size chunks
+/// (`chunk_size` u32::MAX) give no bound beyond [`MAX_COMPRESSED_POINTS`].
+pub fn laz_points_cap(after: u64, record_len: u64, chunk_size: u32) -> u64 {
+    if chunk_size == u32::MAX || chunk_size == 0 {
+        return MAX_COMPRESSED_POINTS;
+    }
+    let chunks = after.div_ceil(record_len.max(1));
+    chunks.saturating_mul(chunk_size as u64).min(MAX_COMPRESSED_POINTS)
+}
 
 /// The public header's fields that bound allocations, checked against the file.
 struct Layout {
@@ -75,11 +87,6 @@ fn check_layout(b: &[u8]) -> Result<Layout, String> {
     if compressed {
         if count > MAX_COMPRESSED_POINTS {
             return Err(format!("the header declares {count} points; nkrr reads at most {MAX_COMPRESSED_POINTS} from a compressed file"));
-        }
-        if count > after.saturating_mul(LAZ_POINTS_PER_BYTE) {
-            return Err(format!(
-                "the header declares {count} compressed points, but only {after} bytes of point data follow byte {offset_to_points}: the file is truncated or its header is wrong"
-            ));
         }
     } else if (count as u128) * (record_len as u128) > after as u128 {
         return Err(format!(
@@ -238,7 +245,10 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
     let mut take = |rec: &[u8], done: &mut u64| -> Result<(), String> {
         let p = ::las::raw::Point::read_from(rec, &format).map_err(|e| format!("point {done}: {e}"))?;
         let before = out.len();
-        out.push([t.x.direct(p.x), t.y.direct(p.y), t.z.direct(p.z)], [0.0; 3], [0, 0, 0, 255]);
+        let pushed = out.push([t.x.direct(p.x), t.y.direct(p.y), t.z.direct(p.z)], [0.0; 3], [0, 0, 0, 255]);
+        if let Pushed::TooLarge { axis, value, origin } = pushed {
+            return Err(format!("point {done}: {}", Pushed::too_large(axis, value, origin)));
+        }
         if let (true, Some(c)) = (out.len() > before, p.color) {
             rgb16.push([c.red, c.green, c.blue]);
         }
@@ -251,24 +261,60 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
         if layout.format >= 6 {
             check_laz_layers(bytes, &layout, &vlr, record_len)?;
         }
-        let mut d = laz::LasZipDecompressor::new(&mut cur, vlr).map_err(|e| format!("LASzip: {e}"))?;
+        let chunk_size = vlr.chunk_size();
+        let after = bytes.len() as u64 - layout.offset_to_points;
+        let cap = laz_points_cap(after, record_len as u64, chunk_size);
+        if count > cap {
+            return Err(format!(
+                "the header declares {count} compressed points, but the {after} bytes of point data after byte {} can \
+                 hold at most {cap} (each LASzip chunk of at most {chunk_size} points starts with one {record_len}-byte \
+                 point stored whole): the file is truncated or its header is wrong",
+                layout.offset_to_points
+            ));
+        }
+        let mut d = laz::LasZipDecompressor::new(&mut cur, vlr).map_err(|e| {
+            format!(
+                "LASzip, before the first point: reading the chunk table (its offset at byte {}) failed: the file is \
+                 truncated or its chunk table is damaged ({e})",
+                layout.offset_to_points
+            )
+        })?;
+        // Where a failure happened, in the user's terms: the `laz` crate's own messages ("failed
+        // to fill whole buffer", "logic error") say neither which points nor which bytes.
+        let fixed_chunks = chunk_size != u32::MAX && chunk_size > 0;
+        let file_len = bytes.len();
         // A few MB of records at a time, whatever the record length.
         let batch = (BATCH * 64 / record_len.max(1)).clamp(1, BATCH);
         let mut buf = vec![0u8; batch * record_len];
         while done < count {
             let n = (count - done).min(batch as u64) as usize;
             let chunk = &mut buf[..n * record_len];
-            d.decompress_many(chunk).map_err(|e| format!("LASzip, points {done}..{}: {e}", done + n as u64))?;
+            d.decompress_many(chunk).map_err(|e| {
+                let at = d.get_mut().position();
+                let (first, last) = (done / chunk_size as u64, (done + n as u64 - 1) / chunk_size as u64);
+                let chunk_no = match (fixed_chunks, first == last) {
+                    (false, _) => String::new(),
+                    (true, true) => format!(", in chunk {first} ({chunk_size} points a chunk)"),
+                    (true, false) => format!(", in chunks {first}-{last} ({chunk_size} points a chunk)"),
+                };
+                let why = if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                    format!("the compressed data ran out at byte {at} of {file_len}, while decoding these points: the file is truncated")
+                } else {
+                    format!("corrupt compressed data near byte {at} of {file_len}")
+                };
+                format!("LASzip, decoding points {done}..{}{chunk_no}: {why} ({e})", done + n as u64)
+            })?;
             for rec in chunk.chunks_exact(record_len) {
-                take(rec, &mut done)?;
+                take(rec, &mut done).map_err(|m| format!("{m} (a record decompressed from LASzip data: corrupt data?)"))?;
             }
         }
     } else {
         // check_layout has bounded count × record_len by the bytes after the header.
         let start = layout.offset_to_points as usize;
         let body = &bytes[start..start + (count * layout.record_len) as usize];
-        for rec in body.chunks_exact(layout.record_len as usize) {
-            take(&rec[..record_len.min(rec.len())], &mut done)?;
+        for (i, rec) in body.chunks_exact(layout.record_len as usize).enumerate() {
+            take(&rec[..record_len.min(rec.len())], &mut done)
+                .map_err(|m| format!("{m} (the {}-byte record at byte {})", layout.record_len, start + i * layout.record_len as usize))?;
         }
     }
     if out.len() == 0 {
@@ -330,6 +376,17 @@ mod tests {
     use super::*;
 
     /// A minimal LAS 1.2 header for `count` points of format 0 (20 bytes each).
+    #[test]
+    fn the_laz_cap_follows_the_chunks() {
+        // The 1000×1000 grid: 11.5 KB of 20-byte points in chunks of 50000 holds 1M easily.
+        assert!(laz_points_cap(11_500, 20, 50_000) >= 1_000_000);
+        // One chunk's worth of bytes holds at most one chunk.
+        assert_eq!(laz_points_cap(20, 20, 50_000), 50_000);
+        assert_eq!(laz_points_cap(21, 20, 50_000), 100_000);
+        assert_eq!(laz_points_cap(1 << 40, 20, u32::MAX), MAX_COMPRESSED_POINTS);
+        assert_eq!(laz_points_cap(1 << 40, 1, 50_000), MAX_COMPRESSED_POINTS);
+    }
+
     fn header(count: u32, body: usize) -> Vec<u8> {
         let mut b = vec![0u8; 227 + body];
         b[..4].copy_from_slice(b"LASF");

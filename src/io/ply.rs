@@ -34,7 +34,7 @@
 //! it must not reach the reconstruction either. If every vertex is dropped the cloud is useless
 //! and that is an error ([`PlyError::AllNonFinite`]).
 
-use super::builder::CloudBuilder;
+use super::builder::{CloudBuilder, Pushed};
 use crate::cloud::PointCloud;
 use std::fmt;
 
@@ -345,6 +345,8 @@ pub enum PlyError {
     },
     /// The header declares zero vertices.
     EmptyCloud,
+    /// Vertex `index` has a finite coordinate too large for an `f32`; `message` says which.
+    TooLarge { index: u64, message: String },
     /// Every one of the `count` vertices has a NaN or infinite coordinate.
     AllNonFinite {
         count: u64,
@@ -442,6 +444,7 @@ impl fmt::Display for PlyError {
                  '{property}' has negative count {value}"
             ),
             EmptyCloud => write!(f, "PLY file declares 0 vertices"),
+            TooLarge { index, message } => write!(f, "PLY vertex {index}: {message}"),
             AllNonFinite { count } => write!(
                 f,
                 "all {count} PLY vertices have a NaN or infinite coordinate; nothing to read"
@@ -468,6 +471,23 @@ fn is_space(b: u8) -> bool {
     matches!(b, b' ' | b'\t' | b'\r' | b'\n' | 0x0b | 0x0c)
 }
 
+/// The UTF-8 byte-order mark, accepted before a PLY header's magic.
+pub const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
+
+/// Whether `bytes` (after any BOM) start with the PLY magic line: `ply` in any case, then
+/// spaces or tabs at most, then a line break or the end of the bytes. Looks at 64 bytes at
+/// most, so a large non-PLY file is not scanned for a newline.
+pub fn has_magic(bytes: &[u8]) -> bool {
+    if bytes.len() < 3 || !bytes[..3].eq_ignore_ascii_case(b"ply") {
+        return false;
+    }
+    let rest = &bytes[3..bytes.len().min(64)];
+    match rest.iter().position(|&b| b == b'\n' || b == b'\r') {
+        Some(end) => rest[..end].iter().all(|&b| b == b' ' || b == b'\t'),
+        None => bytes.len() <= 64 && rest.iter().all(|&b| b == b' ' || b == b'\t'),
+    }
+}
+
 /// Parses and validates the header. Needs only the bytes up to and including the `end_header`
 /// line, so it can be called on a prefix of a large file (a prefix that cuts the header short
 /// gives [`PlyError::MissingEndHeader`]: read more); it therefore does not check declared
@@ -483,7 +503,12 @@ pub fn read_ply_header(bytes: &[u8]) -> Result<PlyHeader, PlyError> {
     let mut comments = Vec::new();
     let mut obj_info = Vec::new();
 
-    if !bytes.starts_with(b"ply") {
+    // A UTF-8 byte-order mark (some Windows editors add one) and `PLY` in capitals are
+    // accepted: the rest of the file decides, and refusing them read such files as text.
+    if bytes.starts_with(UTF8_BOM) {
+        pos = UTF8_BOM.len();
+    }
+    if !has_magic(&bytes[pos..]) {
         return Err(PlyError::NotPly); // without scanning a large non-PLY file for a newline
     }
     let body_offset = loop {
@@ -501,7 +526,7 @@ pub fn read_ply_header(bytes: &[u8]) -> Result<PlyHeader, PlyError> {
         // An unterminated last line is a header cut short, unless it is `end_header` itself
         // (a header-only prefix, or a file whose body is empty).
         if !terminated && line.trim_ascii() != b"end_header" {
-            if line_no == 1 && line.trim_ascii() != b"ply" {
+            if line_no == 1 && !line.trim_ascii().eq_ignore_ascii_case(b"ply") {
                 return Err(PlyError::NotPly);
             }
             return Err(PlyError::MissingEndHeader { lines: line_no - 1 });
@@ -514,7 +539,7 @@ pub fn read_ply_header(bytes: &[u8]) -> Result<PlyHeader, PlyError> {
         };
 
         if line_no == 1 {
-            if line.trim_ascii() != b"ply" {
+            if !line.trim_ascii().eq_ignore_ascii_case(b"ply") {
                 return Err(PlyError::NotPly);
             }
             continue;
@@ -1152,7 +1177,7 @@ fn color_u8(v: f64, t: ScalarType) -> u8 {
 /// Decodes one vertex's used values into the shared [`CloudBuilder`] (which recentres far-off
 /// clouds and counts vertices with a non-finite position instead of storing them).
 #[inline(always)]
-fn push_vertex(out: &mut CloudBuilder, v: &[f64; NSLOTS], p: &VertexPlan) {
+fn push_vertex(out: &mut CloudBuilder, v: &[f64; NSLOTS], p: &VertexPlan) -> Pushed {
     let normal = if p.has_normals { [v[NX] as f32, v[NX + 1] as f32, v[NX + 2] as f32] } else { [0.0; 3] };
     let colour = if p.has_colors {
         let t = &p.types;
@@ -1161,7 +1186,17 @@ fn push_vertex(out: &mut CloudBuilder, v: &[f64; NSLOTS], p: &VertexPlan) {
     } else {
         [0; 4]
     };
-    out.push([v[X], v[X + 1], v[X + 2]], normal, colour);
+    out.push([v[X], v[X + 1], v[X + 2]], normal, colour)
+}
+
+/// Refuses a vertex whose position an `f32` cannot hold (see [`Pushed`]).
+fn check_pushed(pushed: Pushed, index: u64) -> Result<(), PlyError> {
+    match pushed {
+        Pushed::TooLarge { axis, value, origin } => {
+            Err(PlyError::TooLarge { index, message: Pushed::too_large(axis, value, origin) })
+        }
+        _ => Ok(()),
+    }
 }
 
 fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, usize), PlyError> {
@@ -1190,11 +1225,11 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
                 off += t.size();
             }
         }
-        for rec in src.data()[range].chunks_exact(size) {
+        for (index, rec) in src.data()[range].chunks_exact(size).enumerate() {
             for &(off, t, s) in &used {
                 v[s] = S::decode(&rec[off..], t);
             }
-            push_vertex(&mut out, &v, &p);
+            check_pushed(push_vertex(&mut out, &v, &p), index as u64)?;
         }
     } else {
         for index in 0..e.count {
@@ -1208,7 +1243,7 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
                 };
                 r.map_err(|f| located_src(f, e, index, pi, src))?;
             }
-            push_vertex(&mut out, &v, &p);
+            check_pushed(push_vertex(&mut out, &v, &p), index)?;
         }
     }
     if out.len() == 0 {

@@ -50,7 +50,7 @@ impl From<PlyError> for ScanError {
 /// The format of `bytes`, from their first bytes; `name` (a file name) is used only when the
 /// content alone cannot tell.
 pub fn detect(bytes: &[u8], name: Option<&str>) -> Result<ScanFormat, ScanError> {
-    if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r") || bytes == b"ply" {
+    if ply::has_magic(bytes.strip_prefix(ply::UTF8_BOM).unwrap_or(bytes)) {
         return Ok(ScanFormat::Ply);
     }
     if bytes.starts_with(b"LASF") {

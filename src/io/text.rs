@@ -8,10 +8,23 @@
 //! taken as normals when they are unit vectors and as colours when they are 0–255 integers,
 //! 0–1 fractions or 16-bit values (judged on the first 1000 points).
 //! Every data line must have as many values as the first; an error names the line.
+//!
+//! Lines end with LF, CRLF or a lone CR (classic Mac OS exports): reading only LF made a
+//! CR-only file one long line. A decimal-comma dialect (`-0,1646;0,3188;-0,3483`, as European
+//! spreadsheets export) is read when the first data line makes it unambiguous: fields separated
+//! by `;`, each holding exactly one comma with digits on both sides. Read as ordinary CSV, such
+//! a line is six columns with x = ±0, a cloud that is wrong without a word. Once the dialect is
+//! chosen, a line that does not fit it (a field with two commas, or a comma not between digits)
+//! is refused with its line number rather than guessed at; so is a first data line with both
+//! `;` and `,` that is not unambiguous (`1,5;2;3,25`: decimal commas on some fields only, or
+//! two separators).
+//! A NUL byte is refused with its byte offset, and a line of more than [`MAX_COLUMNS`] numbers
+//! with its count: both used to end as "not a point cloud" or "no line of numbers", which
+//! pointed nowhere.
 
 use std::fmt;
 
-use super::builder::CloudBuilder;
+use super::builder::{CloudBuilder, Pushed};
 use super::scan_file::{ScanFile, ScanFormat};
 
 /// Why a text cloud could not be read; `line` is 1-based (0 when it is about the whole file).
@@ -44,20 +57,48 @@ const SAMPLE_LINES: usize = 1000;
 /// Values per line beyond which a line is not a point.
 const MAX_COLUMNS: usize = 64;
 
-/// Whether `bytes` start like a text file: no NUL and almost only printable ASCII in the first
-/// 4 KB, with at least one digit.
+/// Whether `bytes` start like a text file: almost only printable ASCII in the first 4 KB
+/// (at most one byte in 50 otherwise: a binary file has far more), with at least one digit.
+/// A stray NUL (one in 50 bytes, or one in a short file) is let through, so that the text
+/// reader can say where it is; UTF-16 text and binary files have far more.
 pub fn looks_like_text(bytes: &[u8]) -> bool {
     let head = &bytes[..bytes.len().min(4096)];
     let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
-    if head.contains(&0) || !head.iter().any(u8::is_ascii_digit) {
+    if !head.iter().any(u8::is_ascii_digit) {
         return false;
     }
-    let odd = head.iter().filter(|&&b| !(b.is_ascii_graphic() || b.is_ascii_whitespace())).count();
-    odd * 50 <= head.len()
+    let nul = head.iter().filter(|&&b| b == 0).count();
+    let odd = head.iter().filter(|&&b| b != 0 && !(b.is_ascii_graphic() || b.is_ascii_whitespace())).count();
+    nul * 50 <= head.len().max(50) && odd * 50 <= head.len()
 }
 
 fn tokens(line: &str) -> impl Iterator<Item = &str> {
     line.split(|c: char| c == ',' || c == ';' || c.is_ascii_whitespace()).filter(|t| !t.is_empty())
+}
+
+/// The fields of a decimal-comma line: separated by `;` or whitespace, never by `,`.
+fn dc_tokens(line: &str) -> impl Iterator<Item = &str> {
+    line.split(|c: char| c == ';' || c.is_ascii_whitespace()).filter(|t| !t.is_empty())
+}
+
+/// Whether a field is a number written with a decimal comma: exactly one comma, digits on
+/// both sides.
+fn is_decimal_comma_field(t: &str) -> bool {
+    let b = t.as_bytes();
+    let mut commas = b.iter().enumerate().filter(|(_, &c)| c == b',');
+    match (commas.next(), commas.next()) {
+        (Some((i, _)), None) => i > 0 && i + 1 < b.len() && b[i - 1].is_ascii_digit() && b[i + 1].is_ascii_digit(),
+        _ => false,
+    }
+}
+
+/// Whether `line` is unambiguously a line of decimal-comma numbers: `;` separates at least
+/// three fields, and every field has exactly one comma with digits around it.
+fn is_decimal_comma_line(line: &str) -> bool {
+    let t = line.trim();
+    t.contains(';')
+        && dc_tokens(t).count() >= 3
+        && dc_tokens(t).all(|f| is_decimal_comma_field(f) && f.replacen(',', ".", 1).parse::<f64>().is_ok())
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -189,9 +230,13 @@ enum Line<'a> {
     Comment(&'a str),
     Values(usize),
     Words,
+    /// Numbers only, but more than [`MAX_COLUMNS`] of them.
+    TooMany(usize),
+    /// In a decimal-comma file: a field whose commas do not make one decimal comma.
+    BadDecimal(&'a str),
 }
 
-fn classify_line<'a>(line: &'a str, values: &mut Vec<f64>) -> Line<'a> {
+fn classify_line<'a>(line: &'a str, values: &mut Vec<f64>, decimal_comma: bool) -> Line<'a> {
     let t = line.trim();
     if t.is_empty() {
         return Line::Blank;
@@ -203,13 +248,51 @@ fn classify_line<'a>(line: &'a str, values: &mut Vec<f64>) -> Line<'a> {
         }
     }
     values.clear();
-    for tok in tokens(t) {
-        match tok.parse::<f64>() {
-            Ok(v) if values.len() < MAX_COLUMNS => values.push(v),
-            _ => return Line::Words,
+    let mut count = 0usize;
+    if decimal_comma {
+        for tok in dc_tokens(t) {
+            let parsed = if tok.contains(',') {
+                if !is_decimal_comma_field(tok) {
+                    return Line::BadDecimal(tok);
+                }
+                tok.replacen(',', ".", 1).parse::<f64>()
+            } else {
+                tok.parse::<f64>()
+            };
+            match parsed {
+                Ok(v) => {
+                    count += 1;
+                    if count <= MAX_COLUMNS {
+                        values.push(v);
+                    }
+                }
+                Err(_) => return Line::Words,
+            }
+        }
+    } else {
+        for tok in tokens(t) {
+            match tok.parse::<f64>() {
+                Ok(v) => {
+                    count += 1;
+                    if count <= MAX_COLUMNS {
+                        values.push(v);
+                    }
+                }
+                Err(_) => return Line::Words,
+            }
         }
     }
-    Line::Values(values.len())
+    if count > MAX_COLUMNS {
+        return Line::TooMany(count);
+    }
+    Line::Values(count)
+}
+
+fn too_many(count: usize) -> String {
+    format!(
+        "{count} numbers on one line, more than the {MAX_COLUMNS} a point may have (x y z and its attributes): \
+         is this a matrix or an image rather than a point cloud?"
+    )
 }
 
 struct Lines<'a> {
@@ -224,20 +307,39 @@ impl<'a> Iterator for Lines<'a> {
         if self.pos >= self.text.len() {
             return None;
         }
+        // LF, CRLF and a lone CR (classic Mac OS) all end a line.
         let rest = &self.text[self.pos..];
-        let end = rest.find('\n').unwrap_or(rest.len());
-        self.pos += end + 1;
+        let end = rest.find(['\n', '\r']).unwrap_or(rest.len());
+        let crlf = rest.as_bytes().get(end) == Some(&b'\r') && rest.as_bytes().get(end + 1) == Some(&b'\n');
+        self.pos += end + if crlf { 2 } else { 1 };
         self.number += 1;
         Some((self.number, &rest[..end]))
     }
 }
 
+/// The 1-based line that the byte after `before` is on, counting LF, CRLF and lone CR as
+/// [`Lines`] does.
+fn line_of(before: &[u8]) -> usize {
+    let lf = before.iter().filter(|&&b| b == b'\n').count();
+    let lone_cr = before.iter().enumerate().filter(|&(i, &b)| b == b'\r' && before.get(i + 1) != Some(&b'\n')).count();
+    lf + lone_cr + 1
+}
+
 /// Reads a text cloud.
 pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
-    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    if let Some(at) = bytes.iter().position(|&b| b == 0) {
+        let line = line_of(&bytes[..at]);
+        return Err(err(
+            line,
+            format!("a NUL byte at byte {at}: a text cloud holds no NUL bytes (is the file damaged, or UTF-16?)"),
+        ));
+    }
+    let bom = if bytes.starts_with(b"\xEF\xBB\xBF") { 3 } else { 0 };
+    let bytes = &bytes[bom..];
     let text = std::str::from_utf8(bytes).map_err(|e| {
-        let line = bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count() + 1;
-        err(line, "not text: invalid UTF-8 (is this a binary file with a text extension?)")
+        let at = e.valid_up_to();
+        let msg = format!("not text: invalid UTF-8 at byte {} (is this a binary file with a text extension?)", at + bom);
+        err(line_of(&bytes[..at]), msg)
     })?;
 
     // Pass 1: header, comments, the column count, and a sample of the values.
@@ -249,8 +351,23 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     let mut first_data_line = 0usize;
     let mut samples: Vec<Vec<f64>> = Vec::new();
     let mut header_lines = 0usize;
+    // The decimal-comma dialect, decided by the first line that is numbers either way.
+    let mut decimal_comma = false;
     for (number, line) in (Lines { text, pos: 0, number: 0 }) {
-        match classify_line(line, &mut values) {
+        if columns == 0 && !decimal_comma {
+            if is_decimal_comma_line(line) {
+                decimal_comma = true;
+            } else if line.contains(';') && line.contains(',') && matches!(classify_line(line, &mut values, false), Line::Values(_)) {
+                // Numbers separated by both ';' and ',': decimal commas on some fields only
+                // ("1,5;2;3,25") or two separators at once. Either reading may be wrong.
+                return Err(err(
+                    number,
+                    "numbers separated by both ';' and ',': are the commas decimal commas (then every value \
+                     needs one, e.g. 2,0) or separators? nkrr will not guess",
+                ));
+            }
+        }
+        match classify_line(line, &mut values, decimal_comma) {
             Line::Blank => {}
             Line::Comment(c) => {
                 if comments.len() < 16 {
@@ -283,8 +400,9 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
                     break;
                 }
             }
+            Line::TooMany(c) if columns == 0 => return Err(err(number, too_many(c))),
             // A line that does not fit the first point: pass 2 reports it, where it is.
-            Line::Words | Line::Values(_) => break,
+            Line::Words | Line::Values(_) | Line::TooMany(_) | Line::BadDecimal(_) => break,
         }
     }
     if columns == 0 {
@@ -318,8 +436,19 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
         if number < first_data_line {
             continue;
         }
-        match classify_line(line, &mut values) {
+        match classify_line(line, &mut values, decimal_comma) {
             Line::Blank | Line::Comment(_) => {}
+            Line::TooMany(c) => return Err(err(number, too_many(c))),
+            Line::BadDecimal(field) => {
+                let shown: String = field.chars().take(40).collect();
+                return Err(err(
+                    number,
+                    format!(
+                        "'{shown}' is not a number with one decimal comma, but line {first_data_line} made this a \
+                         semicolon-separated file with decimal commas: the file mixes two dialects, nkrr will not guess"
+                    ),
+                ));
+            }
             Line::Words => {
                 let shown: String = line.trim().chars().take(60).collect();
                 return Err(err(number, format!("expected {columns} numbers, found '{shown}'")));
@@ -340,7 +469,9 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
                     }
                     _ => [0, 0, 0, 255],
                 };
-                out.push([values[ix], values[iy], values[iz]], n, c);
+                if let Pushed::TooLarge { axis, value, origin } = out.push([values[ix], values[iy], values[iz]], n, c) {
+                    return Err(err(number, Pushed::too_large(axis, value, origin)));
+                }
             }
         }
     }
@@ -370,7 +501,9 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     // Bytes, not a str slice: 4096 may fall inside a multi-byte character (the libFuzzer
     // target found that).
     let head = &text.as_bytes()[..text.len().min(4096)];
-    let sep = if head.contains(&b',') {
+    let sep = if decimal_comma {
+        "semicolon-separated with decimal commas"
+    } else if head.contains(&b',') {
         "comma-separated"
     } else if head.contains(&b';') {
         "semicolon-separated"
@@ -486,6 +619,33 @@ mod tests {
         s.push_str("0 0 0\n1 0 0\n0 1 0\n");
         assert_eq!(s.char_indices().find(|(_, c)| *c == '\u{61ca}').map(|(i, _)| i), Some(4095));
         assert_eq!(read(&s).cloud.len(), 3);
+    }
+
+    #[test]
+    fn decimal_commas_only_when_unambiguous() {
+        // Plain CSV, and semicolons with decimal points, are unchanged.
+        assert_eq!(read("1,2,3\n4,5,6\n").cloud.positions, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        assert_eq!(read("1.5;2;3\n4;5;6\n").cloud.positions[0], [1.5, 2.0, 3.0]);
+        // A header, then decimal commas; later lines may hold integers.
+        let f = read("x;y;z\n1,5;2,0;3,25\n4;5,5;6\n");
+        assert_eq!(f.cloud.positions, vec![[1.5, 2.0, 3.25], [4.0, 5.5, 6.0]]);
+        // Decimal commas on some fields only, in the first data line: refused, with the line.
+        let e = read_text(b"x;y;z\n1,5;2;3,25\n").unwrap_err();
+        assert_eq!(e.line, 2);
+        assert!(e.message.contains("will not guess"), "{e}");
+        // A comma that is not between digits, after the dialect is set.
+        let e = read_text(b"1,5;2,5;3,5\n1,;2,5;3,5\n").unwrap_err();
+        assert_eq!(e.line, 2);
+    }
+
+    #[test]
+    fn cr_nul_and_columns() {
+        assert_eq!(read("0 0 0\r1 0 0\r\n0 1 0\n").cloud.len(), 3);
+        let e = read_text(b"0 0 0\r1 0\x00 0\n").unwrap_err();
+        assert_eq!((e.line, e.message.contains("byte 9")), (2, true), "{e}");
+        let wide: String = (0..70).map(|i| format!("{i} ")).collect();
+        let e = read_text(format!("0 0 0\n{wide}\n").as_bytes()).unwrap_err();
+        assert!(e.line == 2 && e.message.contains("70"), "{e}");
     }
 
     #[test]
