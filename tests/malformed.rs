@@ -2,15 +2,13 @@
 //! and reading-side messages that pointed nowhere. One test per finding; the inputs are the
 //! small files in tests/fixtures/malformed (see its README.md) or generated here.
 
-mod common;
-
 use std::path::PathBuf;
 
 use nkrr::cloud::{Normalization, PointCloud};
 use nkrr::io::{read_cloud, ScanFormat};
 
 fn fixture(name: &str) -> Vec<u8> {
-    let path: PathBuf = common::repo_root().join("tests/fixtures/malformed").join(name);
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/malformed").join(name);
     std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
