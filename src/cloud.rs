@@ -149,41 +149,9 @@ pub fn principal_spread(points: &[[f32; 3]]) -> [f64; 3] {
         }
     }
     let cov = cov.map(|row| row.map(|v| v / n));
-    let mut ev = symmetric_eigenvalues(cov).map(|v| v.max(0.0).sqrt());
+    let mut ev = crate::eigen3::symmetric(cov).map_or([0.0; 3], |(values, _)| values).map(|v| v.max(0.0).sqrt());
     ev.sort_by(|a, b| b.total_cmp(a));
     ev
-}
-
-/// The eigenvalues of a symmetric 3×3 matrix, by cyclic Jacobi rotations (a few sweeps
-/// converge to f64 precision for a 3×3; the loop is bounded whatever the input).
-fn symmetric_eigenvalues(mut a: [[f64; 3]; 3]) -> [f64; 3] {
-    for _ in 0..64 {
-        let off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
-        let diag = a[0][0] * a[0][0] + a[1][1] * a[1][1] + a[2][2] * a[2][2];
-        if !(off > 1e-32 * diag) {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            if a[p][q] == 0.0 {
-                continue;
-            }
-            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let s = t * c;
-            for row in a.iter_mut() {
-                let (kp, kq) = (row[p], row[q]);
-                row[p] = c * kp - s * kq;
-                row[q] = s * kp + c * kq;
-            }
-            for k in 0..3 {
-                let (pk, qk) = (a[p][k], a[q][k]);
-                a[p][k] = c * pk - s * qk;
-                a[q][k] = s * pk + c * qk;
-            }
-        }
-    }
-    [a[0][0], a[1][1], a[2][2]]
 }
 
 /// The similarity that maps a cloud's positions (relative to its `origin`) to the network's

@@ -8,6 +8,7 @@
 //! The same code builds natively (tests, the `nkrr` CLI) and for `wasm32-unknown-unknown`.
 
 pub mod cloud;
+pub mod eigen3;
 pub mod eval;
 pub mod field;
 pub mod gpu;

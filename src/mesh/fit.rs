@@ -197,50 +197,12 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-/// The unit eigenvector of the smallest eigenvalue of the symmetric 3×3 matrix `a`, by cyclic
-/// Jacobi rotations (exact to rounding for 3×3 in a few sweeps); None when `a` is not finite.
-pub fn smallest_eigenvector(mut a: [[f64; 3]; 3]) -> Option<[f64; 3]> {
-    if a.iter().flatten().any(|x| !x.is_finite()) {
-        return None;
-    }
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    for _ in 0..32 {
-        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
-        let diag = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
-        if off <= 1e-15 * diag || off == 0.0 {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            if a[p][q] == 0.0 {
-                continue;
-            }
-            // The rotation that zeroes a[p][q] (Golub & Van Loan, symmetric Schur).
-            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let t = if theta == 0.0 { 1.0 } else { t };
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let s = t * c;
-            for r in 0..3 {
-                let (arp, arq) = (a[r][p], a[r][q]);
-                a[r][p] = c * arp - s * arq;
-                a[r][q] = s * arp + c * arq;
-            }
-            for r in 0..3 {
-                let (apr, aqr) = (a[p][r], a[q][r]);
-                a[p][r] = c * apr - s * aqr;
-                a[q][r] = s * apr + c * aqr;
-            }
-            for row in &mut v {
-                let (vp, vq) = (row[p], row[q]);
-                row[p] = c * vp - s * vq;
-                row[q] = s * vp + c * vq;
-            }
-        }
-    }
-    let i = (0..3).min_by(|&i, &j| a[i][i].total_cmp(&a[j][j]))?;
-    let n = [v[0][i], v[1][i], v[2][i]];
-    let len = dot(n, n).sqrt();
-    (len > 0.0).then(|| n.map(|x| x / len))
+/// The unit eigenvector of the smallest eigenvalue of the symmetric 3×3 matrix `a` (the plane's
+/// normal for a covariance matrix); None when `a` is not finite.
+fn smallest_eigenvector(a: [[f64; 3]; 3]) -> Option<[f64; 3]> {
+    let (values, vectors) = crate::eigen3::symmetric(a)?;
+    let i = (0..3).min_by(|&i, &j| values[i].total_cmp(&values[j]))?;
+    Some(vectors[i])
 }
 
 #[cfg(test)]
