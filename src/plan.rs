@@ -169,7 +169,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         if reference::host_bytes(2 * n, m, d) > budget {
             // The f64 kernel matrix grows with n: find the largest n that fits.
             let per_point = 2 * reference::host_bytes_per_pair(m, d);
-            let fit = budget.saturating_sub(96 * m * m + attrs) / per_point.max(1);
+            let fit = budget.saturating_sub(reference::host_bytes(0, m, d) + attrs) / per_point.max(1);
             actions.push(format!(
                 "subsample the regression to {fit} points (from {n}): its f64 kernel matrix would exceed the {} host budget",
                 mib(budget)
@@ -224,12 +224,8 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     if settings.fit || settings.trim.is_some() || (colours && settings.colors) {
         let mut host = 12 * size.triangles + 12 * size.active;
         // The fit and the trim each index the points (and their neighbour lists).
-        if settings.fit {
-            host += 2 * (12 * n + 8 * n);
-        }
-        if settings.trim.is_some() {
-            host += 2 * (12 * n + 8 * n);
-        }
+        let index = 2 * (12 * n + 8 * n);
+        host += index * (u64::from(settings.fit) + u64::from(settings.trim.is_some()));
         if colours && settings.colors {
             host += 24 * nn;
         }

@@ -154,7 +154,9 @@ pub struct Setting {
     set: fn(&mut Settings, Value),
 }
 
-const NUM: Setting = Setting {
+/// What an entry leaves unsaid: no off flag, alias, presets or bare value, shown for both
+/// methods, not advanced. Every entry sets its own key, flag, help, kind, default, get and set.
+const BASE: Setting = Setting {
     key: "",
     flag: "",
     label: "",
@@ -215,7 +217,7 @@ pub static TABLE: &[Setting] = &[
             Method::Network => "network",
         }),
         set: |s, v| s.method = if choice(v) == "network" { Method::Network } else { Method::Nkrr },
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "m",
@@ -227,7 +229,7 @@ pub static TABLE: &[Setting] = &[
         nkrr_only: true,
         get: |s| Value::Num(s.m as f64),
         set: |s, v| s.m = num(v) as usize,
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "steps",
@@ -240,7 +242,7 @@ pub static TABLE: &[Setting] = &[
         nkrr_only: true,
         get: |s| Value::Num(s.steps as f64),
         set: |s, v| s.steps = num(v) as usize,
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "resolution",
@@ -252,7 +254,7 @@ pub static TABLE: &[Setting] = &[
         presets: &[(64.0, "64³"), (96.0, "96³"), (128.0, "128³"), (192.0, "192³"), (256.0, "256³")],
         get: |s| Value::Num(s.resolution as f64),
         set: |s, v| s.resolution = num(v) as u32,
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "removeSmall",
@@ -265,7 +267,7 @@ pub static TABLE: &[Setting] = &[
         presets: &[(0.0, "Off"), (0.01, "< 1% of the largest"), (0.05, "< 5% of the largest"), (0.2, "< 20% of the largest")],
         get: |s| from_opt(s.remove_small_components),
         set: |s, v| s.remove_small_components = opt_f32(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "units",
@@ -283,7 +285,7 @@ pub static TABLE: &[Setting] = &[
         default: Value::Off,
         get: |s| s.units.map_or(Value::Off, |u| Value::Choice(u.code())),
         set: |s, v| s.units = choice(v).parse().ok(),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "trim",
@@ -297,7 +299,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| from_opt(s.trim),
         set: |s, v| s.trim = opt_f32(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "fit",
@@ -308,7 +310,7 @@ pub static TABLE: &[Setting] = &[
         default: Value::Bool(true),
         get: |s| Value::Bool(s.fit),
         set: |s, v| s.fit = flag(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "colors",
@@ -320,7 +322,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Bool(s.colors),
         set: |s, v| s.colors = flag(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "maxPoints",
@@ -332,7 +334,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Num(s.max_points as f64),
         set: |s, v| s.max_points = num(v) as usize,
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "lambda",
@@ -345,7 +347,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Num(s.lambda),
         set: |s, v| s.lambda = num(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "labelClip",
@@ -360,7 +362,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| from_opt(s.label_clip),
         set: |s, v| s.label_clip = opt_f32(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "knnK",
@@ -373,7 +375,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Num(s.knn_k as f64),
         set: |s, v| s.knn_k = num(v) as usize,
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "tuneTheta",
@@ -386,7 +388,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Bool(s.tune_theta),
         set: |s, v| s.tune_theta = flag(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "tuneZ",
@@ -399,7 +401,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Bool(s.tune_z),
         set: |s, v| s.tune_z = flag(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "euclidean",
@@ -412,7 +414,7 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Bool(s.euclidean),
         set: |s, v| s.euclidean = flag(v),
-        ..NUM
+        ..BASE
     },
     Setting {
         key: "krrBackend",
@@ -435,7 +437,7 @@ pub static TABLE: &[Setting] = &[
                 _ => KrrBackend::Auto,
             }
         },
-        ..NUM
+        ..BASE
     },
 ];
 
