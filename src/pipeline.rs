@@ -161,11 +161,11 @@ impl Engine {
                 return Err(PipelineError::Cancelled);
             }
             let t = now();
-            let problem = field::training_pairs(&self.net, &planes, &points, settings).await?;
+            let pairs = field::training_pairs(&self.net, &planes, &points, settings).await?;
             timings.push(("pairs", now() - t));
             let t = now();
             let mut report = |step: usize, loss: f64| progress(&Stage::Tuning { step, of: settings.steps, loss });
-            let (fit, summary) = field::fit(&self.gpu, &problem, settings, plan.m.max(1), &mut report).await?;
+            let (fit, summary) = field::fit(&self.gpu, &pairs, settings, plan.m.max(1), &mut report).await?;
             timings.push(("tuning", now() - t));
             tuning = Some(summary);
             Field::Krr(fit)

@@ -101,9 +101,13 @@ fn fd_check(p: &Problem, params: &Params, s: &Ridge, analytic: &[f64], which: us
 fn run_fd(label: &str, n: usize, m: usize, d: usize, lambda: f64, jitter: Option<f64>, z_coords: usize, seed: u64) {
     let p = random_problem(n, d, seed);
     let params = random_params(&p, m, seed + 1);
-    for weighting in [Weighting::Falkon, Weighting::Paper] {
+    // full_n: the loss of a subsample standing for 4n pairs (what tuning on a subsample runs).
+    for (weighting, full_n) in
+        [(Weighting::Falkon, None), (Weighting::Paper, None), (Weighting::Falkon, Some(4 * n)), (Weighting::Paper, Some(4 * n))]
+    {
         let mut s = Ridge::new(lambda, m);
         s.weighting = weighting;
+        s.full_n = full_n;
         if let Some(j) = jitter {
             s.jitter = j;
         }
@@ -119,13 +123,13 @@ fn run_fd(label: &str, n: usize, m: usize, d: usize, lambda: f64, jitter: Option
         let rs = fd_check(&p, &params, &s, &grad.log_s, 0, &all_s, 1e-3);
         let rz = fd_check(&p, &params, &s, &grad.z, 1, &zs, 1e-3);
         println!(
-            "FD {label} {weighting:?} jitter {:.0e}: loss {:.6e} (T1 {:.3}, T2 {:.3e}, D {:.3e}) | \
+            "FD {label} {weighting:?} full_n {full_n:?} jitter {:.0e}: loss {:.6e} (T1 {:.3}, T2 {:.3e}, D {:.3e}) | \
              log_s: norm rel {:.2e}, worst comp {:.2e} | z ({} comps): norm rel {:.2e}, worst comp {:.2e}",
             s.jitter, eval.loss, eval.t1, eval.t2, eval.d_term, rs.norm_rel, rs.worst_component_rel, zs.len(),
             rz.norm_rel, rz.worst_component_rel
         );
-        assert!(rs.norm_rel < 1e-4 && rs.worst_component_rel < 1e-4, "{label} {weighting:?} log_s");
-        assert!(rz.norm_rel < 1e-4 && rz.worst_component_rel < 1e-4, "{label} {weighting:?} z");
+        assert!(rs.norm_rel < 1e-4 && rs.worst_component_rel < 1e-4, "{label} {weighting:?} {full_n:?} log_s");
+        assert!(rz.norm_rel < 1e-4 && rz.worst_component_rel < 1e-4, "{label} {weighting:?} {full_n:?} z");
     }
 }
 
@@ -230,7 +234,7 @@ fn nystrom_solve_satisfies_normal_equations() {
     let p = random_problem(n, d, 21);
     let params = random_params(&p, m, 22);
     for jitter in [0.0, 1e-6 * m as f64] {
-        let s = Ridge { lambda, jitter, weighting: Weighting::Falkon };
+        let s = Ridge { lambda, jitter, weighting: Weighting::Falkon, full_n: None };
         let eval = objective(&p, &params, &s).unwrap();
         let knm = kernel::k_nm(p.x(), &params.z, &params.log_s);
         let mut kj = kernel::k_mm(&params.z, &params.log_s);
@@ -264,7 +268,7 @@ fn trace_identities_hold_against_the_n_by_n_forms() {
     let (n, m, d, lambda) = (40, 8, 3, 1e-2);
     let p = random_problem(n, d, 31);
     let params = random_params(&p, m, 32);
-    let s = Ridge { lambda, jitter: 1e-8, weighting: Weighting::Paper };
+    let s = Ridge { lambda, jitter: 1e-8, weighting: Weighting::Paper, full_n: None };
     let eval = objective(&p, &params, &s).unwrap();
 
     // K̃ = K_nm K_j⁻¹ K_nmᵀ (n × n), explicitly.
@@ -639,4 +643,69 @@ fn async_tuning_matches_blocking_tuning() {
     assert_eq!(blocking.params, asynchronous.params);
     assert_eq!(blocking.history, asynchronous.history);
     assert_eq!(blocking.stop, asynchronous.stop);
+}
+
+/// What `field::fit` does with `--tune-pairs`: tune θ and Z on a subsample of the pairs, then
+/// solve β once on all of them. On a problem whose answer needs the right length-scales, the
+/// held-out error must match tuning on all pairs, and beat not tuning at all by far; β from
+/// the subsample alone (no final solve) must be worse, or the final solve would be pointless.
+#[test]
+fn tuning_on_a_subsample_then_solving_on_all_matches_full_tuning() {
+    let (n, m, lambda) = (3000, 60, 1e-4);
+    let train = relevance_problem(n, 81);
+    let test = relevance_problem(1000, 82);
+    let ridge = Ridge::new(lambda, m);
+    let ts = TuneSettings { steps: 60, ..Default::default() };
+    let held_out = |beta: &[f64], p: &Params| {
+        let g = predict(beta, &p.z, &p.log_s, test.x()).unwrap();
+        g.iter().zip(test.y()).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / 1000.0
+    };
+
+    let full = tune(&mut Reference { problem: &train, settings: ridge }, init_params(&train, m, 3, LengthScaleInit::default()), &ts, |_, _| true).unwrap();
+    let mse_full = held_out(&full.eval.beta, &full.params);
+
+    let rows: Vec<usize> = (0..n).step_by(10).collect();
+    let sub = train.select(&rows);
+    assert_eq!((sub.n(), sub.d()), (300, 4));
+    assert_eq!(&sub.x()[4..8], &train.x()[40..44]);
+    let tuned = tune(&mut Reference { problem: &sub, settings: ridge }, init_params(&sub, m, 3, LengthScaleInit::default()), &ts, |_, _| true).unwrap();
+    let beta_all = objective(&train, &tuned.params, &ridge).unwrap().beta;
+    let mse_sub = held_out(&beta_all, &tuned.params);
+    let mse_sub_only = held_out(&tuned.eval.beta, &tuned.params);
+
+    let init = init_params(&train, m, 3, LengthScaleInit::default());
+    let mse_untuned = held_out(&objective(&train, &init, &ridge).unwrap().beta, &init);
+    println!("held-out mse: full {mse_full:.3e}, subsample + solve on all {mse_sub:.3e}, subsample only {mse_sub_only:.3e}, untuned {mse_untuned:.3e}");
+    assert!(mse_sub < 1.5 * mse_full, "subsample tuning: {mse_sub:.3e} vs full {mse_full:.3e}");
+    assert!(mse_sub < 0.2 * mse_untuned, "subsample tuning {mse_sub:.3e} vs untuned {mse_untuned:.3e}");
+    assert!(mse_sub < mse_sub_only, "the solve on all pairs {mse_sub:.3e} vs the subsample's β {mse_sub_only:.3e}");
+}
+
+/// `Ridge::full_n`: a uniform subsample's loss estimates the loss on all the pairs (both
+/// weightings), where the subsample's own loss, which weighs the complexity terms for fewer
+/// pairs, does not (Falkon's weighting). T1 = Tr(H⁻¹A) is not linear in the pairs, hence the
+/// few per cent left.
+#[test]
+fn a_subsample_estimates_the_full_objective() {
+    let (n, m, lambda) = (4000, 40, 1e-4);
+    let all = relevance_problem(n, 91);
+    let params = init_params(&all, m, 3, LengthScaleInit::default());
+    let rows: Vec<usize> = (0..n).step_by(4).collect();
+    let sub = all.select(&rows);
+    for weighting in [Weighting::Falkon, Weighting::Paper] {
+        let ridge = Ridge { weighting, ..Ridge::new(lambda, m) };
+        let full = objective(&all, &params, &ridge).unwrap();
+        let own = objective(&sub, &params, &ridge).unwrap();
+        let est = objective(&sub, &params, &Ridge { full_n: Some(n), ..ridge }).unwrap();
+        let rel = |e: &Eval| (e.loss - full.loss).abs() / full.loss;
+        println!("{weighting:?}: full loss {:.5e}, subsample's own {:.5e} ({:.1e}), as an estimate {:.5e} ({:.1e})", full.loss, own.loss, rel(&own), est.loss, rel(&est));
+        assert!(rel(&est) < 0.1, "{weighting:?}: estimate off by {:.3}", rel(&est));
+        // With the paper's c = 2/(nλ), c·T2 does not depend on n and only T1's small term moves;
+        // with Falkon's, the subsample's own loss weighs T2·D four times too heavily here.
+        if weighting == Weighting::Falkon {
+            assert!(rel(&est) < 0.25 * rel(&own), "{weighting:?}: the estimate is no better than the subsample's own loss");
+        }
+        // β and D do not depend on full_n.
+        assert_eq!((est.beta.clone(), est.d_term), (own.beta.clone(), own.d_term));
+    }
 }

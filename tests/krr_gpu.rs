@@ -147,13 +147,15 @@ fn assert_within(label: &str, e: &Errors, tol: &Tol) {
 fn run_case(gpu: &Gpu, label: &str, n: usize, m: usize, d: usize, lambda: f64, seed: u64, tol: &Tol) {
     let p = random_problem(n, d, seed);
     let params = random_params(&p, m, seed + 1);
-    for weighting in [Weighting::Falkon, Weighting::Paper] {
+    // full_n: a subsample standing for 3n pairs (tuning on a subsample).
+    for (weighting, full_n) in [(Weighting::Falkon, None), (Weighting::Paper, None), (Weighting::Falkon, Some(3 * n))] {
         let mut s = Ridge::new(lambda, m);
         s.weighting = weighting;
+        s.full_n = full_n;
         let want = objective_and_grad(&p, &params, &s).unwrap();
         let mut obj = GpuObjective::new_blocking(gpu, &p, s).unwrap();
         let got = obj.eval_grad(&params).unwrap();
-        let label = format!("{label} {weighting:?}");
+        let label = format!("{label} {weighting:?} full_n {full_n:?}");
         let e = compare(&label, &got, &want);
         println!("{label}: timings {}", obj.timings.summary());
         assert_within(&label, &e, tol);

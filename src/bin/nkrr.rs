@@ -313,8 +313,8 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         .map_err(|e| fail(format!("{input}: {e}")))?;
     if let Some(t) = &rec.tuning {
         tell!(
-            "tuning ({}): n {} m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e} (best at step {})",
-            t.backend, t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit, t.best_step
+            "tuning ({}): tuned on {} of {} pairs, m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e} (best at step {})",
+            t.backend, t.tuned_on, t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit, t.best_step
         );
         if let Some(p) = &t.phases {
             tell!("tuning phases over {} evaluations: {}", t.evaluations, p.summary());
@@ -421,6 +421,12 @@ fn bench(args: &[String]) -> Result<(), Failure> {
     }
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
     say!("adapter: {}", gpu.describe());
+    say!(
+        "CPU share of one tuning step on a GPU objective (f64 m x m algebra, {} threads): m 500 {:.1} ms, m 1000 {:.1} ms",
+        nkrr::krr::linalg::max_threads(),
+        1e3 * nkrr::krr::mm::algebra_step_seconds(500, 32, 5),
+        1e3 * nkrr::krr::mm::algebra_step_seconds(1000, 32, 3)
+    );
     let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
     if settings.method == Method::Network {
         ms = vec![0];

@@ -302,6 +302,12 @@ pub struct PhaseTimings {
 }
 
 impl PhaseTimings {
+    /// These timings and `o`'s, summed.
+    pub fn plus(mut self, o: &PhaseTimings) -> PhaseTimings {
+        self.accumulate(o);
+        self
+    }
+
     fn accumulate(&mut self, o: &PhaseTimings) {
         self.kernel += o.kernel;
         self.gram += o.gram;
@@ -657,6 +663,7 @@ struct Forward {
     a: Vec<f64>,
     h_inv: Vec<f64>,
     kj_inv: Vec<f64>,
+    alpha: f64,
     c: f64,
     eval: Eval,
 }
@@ -973,8 +980,8 @@ impl GpuObjective {
         let data_fit = ((self.yy - 2.0 * dot(&b, &beta) + dot(&beta, &ab)) / nf).max(0.0);
         let rkhs_norm2 = dot(&beta, &linalg::matvec(&kj, &beta, m, m));
         let d_term = data_fit + lambda * rkhs_norm2;
-        let c = settings.weighting.c(n, lambda);
-        let loss = 2.0 / nf * t1 + c * t2 * d_term + 2.0 * d_term;
+        let (alpha, c) = settings.weights(n);
+        let loss = alpha * t1 + c * t2 * d_term + 2.0 * d_term;
         if !loss.is_finite() {
             return Err(KrrError::NonFinite(format!(
                 "objective: loss = {loss} (T1 = {t1}, T2 = {t2}, D = {d_term})"
@@ -985,7 +992,7 @@ impl GpuObjective {
         tm.cpu_algebra += now_s() - t;
 
         let grad = if want_grad {
-            let fwd = Forward { m, z: z64, inv_s: inv_s64, kmm, lk, a, h_inv, kj_inv, c, eval: eval.clone() };
+            let fwd = Forward { m, z: z64, inv_s: inv_s64, kmm, lk, a, h_inv, kj_inv, alpha, c, eval: eval.clone() };
             Some(self.backward(&fwd, &mut tm).await?)
         } else {
             None
@@ -1009,7 +1016,7 @@ impl GpuObjective {
         let nf = n as f64;
         let (c, dd, t2) = (f.c, f.eval.d_term, f.eval.t2);
         let beta = &f.eval.beta;
-        let MmGrad { w, gmm, s_r } = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &f.a, beta, lambda, c, dd, t2, n: nf, m });
+        let MmGrad { w, gmm, s_r } = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &f.a, beta, lambda, alpha: f.alpha, c, dd, t2, n: nf, m });
         let w32: Vec<f32> = w.iter().map(|&v| v as f32).collect();
         if w32.iter().any(|v| !v.is_finite()) || !(s_r as f32).is_finite() {
             return Err(KrrError::NonFinite("gradient weights W out of f32 range".into()).into());

@@ -62,6 +62,8 @@ pub(crate) struct MmParts<'a> {
     pub a: &'a [f64],
     pub beta: &'a [f64],
     pub lambda: f64,
+    /// The weight of `T1` in the loss (`2/n` for all data, see [`super::problem::Ridge::weights`]).
+    pub alpha: f64,
     pub c: f64,
     pub dd: f64,
     pub t2: f64,
@@ -105,6 +107,10 @@ pub(crate) fn mm_grad(p: &MmParts) -> MmGrad {
     );
     let cd = p.c * p.dd;
     let s_beta = (p.c * p.t2 + 2.0) * p.lambda;
+    // T1's terms: α·∂T1/∂K_mm = −α nλ H⁻¹AH⁻¹ and α·∂T1/∂K_nm = 2α K_nm M1 (with α = 2/n these
+    // are the −2λ H⁻¹AH⁻¹ and (4/n) M1 of method.md §6).
+    let t1_mm = p.alpha * nl;
+    let t1_nm = 2.0 * p.alpha * nl;
     // Elementwise, threaded over rows: G_mm first (it reads H⁻¹K_jH⁻¹), then W in place of it.
     const ROWS: usize = 16;
     let threads = linalg::max_threads();
@@ -117,7 +123,7 @@ pub(crate) fn mm_grad(p: &MmParts) -> MmGrad {
             for k in 0..m {
                 let hah = hrow[k] - nl * hkhrow[k];
                 // s_β (β_j β_k), not (s_β β_j) β_k: exactly symmetric.
-                grow[k] = -2.0 * p.lambda * hah + cd * grow[k] + s_beta * (bj * p.beta[k]);
+                grow[k] = -t1_mm * hah + cd * grow[k] + s_beta * (bj * p.beta[k]);
             }
         }
     });
@@ -125,8 +131,8 @@ pub(crate) fn mm_grad(p: &MmParts) -> MmGrad {
     linalg::par_row_units(&mut w, m, m, ROWS, threads, &work, |u0, u1, rows| {
         for (j, wrow) in (u0 * ROWS..(u1 * ROWS).min(m)).zip(rows.chunks_mut(m)) {
             for (wv, kv) in wrow.iter_mut().zip(&p.kj_inv[j * m..(j + 1) * m]) {
-                // (4/n) M1 with M1 = nλ H⁻¹K_jH⁻¹ is 4λ H⁻¹K_jH⁻¹.
-                *wv = 4.0 * p.lambda * *wv - 2.0 * cd * kv;
+                // 2α M1 with M1 = nλ H⁻¹K_jH⁻¹.
+                *wv = t1_nm * *wv - 2.0 * cd * kv;
             }
         }
     });
@@ -174,6 +180,44 @@ pub(crate) fn kmm_side(gmm: &[f64], kmm: &[f64], z: &[f64], m: usize, d: usize) 
     (gz, gs)
 }
 
+/// Seconds of the CPU's share of one tuning step on a GPU objective with `m` inducing points
+/// and `d` features (the median of `reps` runs): the m × m algebra of the forward pass, of the
+/// gradient and the `K_mm` side, which the GPU objective runs in f64 on the CPU at every step
+/// (in the browser: wasm, on the worker's one thread). On synthetic inputs of the objective's
+/// shapes (`A` the Gram matrix of a Gaussian `K_nm` with n = 2m). For `nkrr bench` and the
+/// page's `tuning_step_ms`.
+pub fn algebra_step_seconds(m: usize, d: usize, reps: usize) -> f64 {
+    use super::kernel;
+    let n = 2 * m;
+    let mut rng = crate::rng::SplitMix64(m as u64);
+    let x: Vec<f64> = (0..n * d).map(|_| rng.unit() - 0.5).collect();
+    let y: Vec<f64> = (0..n).map(|_| rng.unit() - 0.5).collect();
+    let z: Vec<f64> = (0..m * d).map(|_| rng.unit() - 0.5).collect();
+    let log_s = vec![(0.3f64 * (d as f64).sqrt()).ln(); d];
+    let knm = kernel::k_nm(&x, &z, &log_s);
+    let kmm = kernel::k_mm(&z, &log_s);
+    let a = linalg::gram(&knm, n, m);
+    let b = linalg::matvec_t(&knm, &y, n, m);
+    let ridge = super::problem::Ridge::new(1e-5, m);
+    let (alpha, c) = ridge.weights(n);
+    let (nf, lambda) = (n as f64, ridge.lambda);
+    let mut times: Vec<f64> = (0..reps.max(1))
+        .map(|_| {
+            let t = crate::gpu::now();
+            let mut kj = kmm.clone();
+            for j in 0..m {
+                kj[j * m + j] += ridge.jitter;
+            }
+            let f = mm_forward(&a, &kj, &b, nf * lambda, nf, m).expect("a Gaussian Gram matrix with jitter is positive definite");
+            let g = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &a, beta: &f.beta, lambda, alpha, c, dd: 0.1, t2: f.t2, n: nf, m });
+            std::hint::black_box(kmm_side(&g.gmm, &kmm, &z, m, d));
+            crate::gpu::now() - t
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times[times.len() / 2]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -208,7 +252,7 @@ mod tests {
         }
         let f = mm_forward(a, &kj, b, nf * lambda, nf, m).unwrap();
         let c = Weighting::Falkon.c(n, lambda);
-        let g = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a, beta: &f.beta, lambda, c, dd: 0.1, t2: f.t2, n: nf, m });
+        let g = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a, beta: &f.beta, lambda, alpha: 2.0 / nf, c, dd: 0.1, t2: f.t2, n: nf, m });
         let (_, gs) = kmm_side(&g.gmm, kmm, z, m, d);
         (g, gs, f.t1, f.t2)
     }
@@ -233,7 +277,7 @@ mod tests {
             }
             let f = mm_forward(&a, &kj, &b, nf * lambda, nf, m).unwrap();
             let (c, dd) = (Weighting::Paper.c(n, lambda), 0.3);
-            let g = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &a, beta: &f.beta, lambda, c, dd, t2: f.t2, n: nf, m });
+            let g = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &a, beta: &f.beta, lambda, alpha: 2.0 / nf, c, dd, t2: f.t2, n: nf, m });
             let mul = |x: &[f64], y: &[f64]| linalg::matmul(x, y, m, m, m);
             let max_abs = |v: &[f64]| v.iter().fold(0.0f64, |x, y| x.max(y.abs()));
             let max_diff = |u: &[f64], v: &[f64]| u.iter().zip(v).fold(0.0f64, |x, (p, q)| x.max((p - q).abs()));
@@ -310,7 +354,7 @@ mod tests {
             }
             let f = mm_forward(&a, &kj, &b, nf * lambda, nf, m).unwrap();
             let t_fwd = best_of(&mut || drop(mm_forward(&a, &kj, &b, nf * lambda, nf, m).unwrap()));
-            let parts = MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &a, beta: &f.beta, lambda, c, dd: 0.1, t2: f.t2, n: nf, m };
+            let parts = MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &a, beta: &f.beta, lambda, alpha: 2.0 / nf, c, dd: 0.1, t2: f.t2, n: nf, m };
             let t_grad = best_of(&mut || drop(mm_grad(&parts)));
             let t_q = best_of(&mut || drop(kmm_side(&g.gmm, &kmm, &z, m, d)));
             println!("  m {m}: mm_forward {t_fwd:.1} ms, mm_grad {t_grad:.1} ms, kmm_side {t_q:.1} ms");

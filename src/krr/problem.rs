@@ -67,6 +67,18 @@ impl Problem {
         Problem::new(x.iter().map(|&v| v as f64).collect(), y.iter().map(|&v| v as f64).collect(), d)
     }
 
+    /// The problem made of rows `rows` of this one, in that order (at least one).
+    pub fn select(&self, rows: &[usize]) -> Problem {
+        assert!(!rows.is_empty(), "Problem::select needs at least one row");
+        let d = self.d;
+        Problem {
+            x: rows.iter().flat_map(|&i| self.x[i * d..(i + 1) * d].iter().copied()).collect(),
+            y: rows.iter().map(|&i| self.y[i]).collect(),
+            n: rows.len(),
+            d,
+        }
+    }
+
     /// Features, `n × d` row-major.
     pub fn x(&self) -> &[f64] {
         &self.x
@@ -132,6 +144,10 @@ pub struct Ridge {
     pub jitter: f64,
     /// Which `c` in front of `T2·D`.
     pub weighting: Weighting,
+    /// When the problem is a uniform subsample of `N` pairs (tuning on fewer pairs than the
+    /// final solve): `Some(N)`, and the loss estimates the objective on all `N` instead of
+    /// being the subsample's own. `None`: the problem is all the data.
+    pub full_n: Option<usize>,
 }
 
 impl Ridge {
@@ -143,7 +159,20 @@ impl Ridge {
 
     /// `lambda`, the default jitter for `m` inducing points, Falkon's weighting.
     pub fn new(lambda: f64, m: usize) -> Self {
-        Ridge { lambda, jitter: Self::JITTER_PER_CENTRE * m as f64, weighting: Weighting::Falkon }
+        Ridge { lambda, jitter: Self::JITTER_PER_CENTRE * m as f64, weighting: Weighting::Falkon, full_n: None }
+    }
+
+    /// The weights `(α, c)` of `L = α T1 + c T2 D + 2 D` for a problem of `n` pairs.
+    ///
+    /// All data: `α = 2/n` and `c` = [`Weighting::c`]. A subsample of `n` out of `N` pairs
+    /// stands for all of them: `A_N ≈ (N/n) A_n` and `b_N ≈ (N/n) b_n`, so `H_N ≈ (N/n) H_n`,
+    /// β and D are unchanged, `T1_N ≈ T1_n` and `T2_N ≈ (N/n) T2_n`; the full loss is then
+    /// `(2/N) T1_n + c(N)·(N/n) T2_n D + 2D`. Without this the subsample's own loss weighs the
+    /// complexity terms as for n pairs (N/n times heavier) and tunes smoother kernels than all
+    /// the pairs support.
+    pub fn weights(&self, n: usize) -> (f64, f64) {
+        let big_n = self.full_n.unwrap_or(n).max(n);
+        (2.0 / big_n as f64, self.weighting.c(big_n, self.lambda) * big_n as f64 / n as f64)
     }
 
     pub(crate) fn check(&self) -> Result<(), KrrError> {

@@ -43,6 +43,7 @@ struct Forward {
     h_inv: Vec<f64>,
     kj_inv: Vec<f64>,
     r: Vec<f64>,
+    alpha: f64,
     c: f64,
     eval: Eval,
 }
@@ -73,15 +74,15 @@ fn forward(problem: &Problem, params: &Params, settings: &Ridge) -> Result<Forwa
     let rkhs_norm2 = dot(&beta, &linalg::matvec(&kj, &beta, m, m));
     let d_term = data_fit + lambda * rkhs_norm2;
 
-    let c = settings.weighting.c(n, lambda);
-    let loss = 2.0 / n as f64 * t1 + c * t2 * d_term + 2.0 * d_term;
+    let (alpha, c) = settings.weights(n);
+    let loss = alpha * t1 + c * t2 * d_term + 2.0 * d_term;
     if !loss.is_finite() {
         return Err(KrrError::NonFinite(format!(
             "objective: loss = {loss} (T1 = {t1}, T2 = {t2}, D = {d_term})"
         )));
     }
     let eval = Eval { loss, data_fit, rkhs_norm2, d_term, t1, t2, beta };
-    Ok(Forward { n, m, knm, kmm, lk, a, h_inv, kj_inv, r, c, eval })
+    Ok(Forward { n, m, knm, kmm, lk, a, h_inv, kj_inv, r, alpha, c, eval })
 }
 
 /// The objective at `params` (no gradient). See the module docs for the definitions.
@@ -114,7 +115,7 @@ pub fn objective_and_grad(problem: &Problem, params: &Params, settings: &Ridge) 
     let (c, dd, t2) = (f.c, f.eval.d_term, f.eval.t2);
     let beta = &f.eval.beta;
 
-    let MmGrad { w, gmm, s_r } = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &f.a, beta, lambda, c, dd, t2, n: nf, m });
+    let MmGrad { w, gmm, s_r } = mm_grad(&MmParts { h_inv: &f.h_inv, lk: &f.lk, kj_inv: &f.kj_inv, a: &f.a, beta, lambda, alpha: f.alpha, c, dd, t2, n: nf, m });
 
     let x = problem.x();
     let z = &params.z;

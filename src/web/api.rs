@@ -121,6 +121,14 @@ pub fn mesh_file(
         .map_err(|e| JsError::new(&format!("mesh_file ({format:?}): {e}")))
 }
 
+/// Milliseconds of the CPU's share of one tuning step with `m` inducing points and 32 features
+/// (median of `reps`), in this build: what a real GPU leaves to the worker's thread at every
+/// step (see `krr::mm::algebra_step_seconds`). For the benchmark in tests/browser.
+#[wasm_bindgen]
+pub fn tuning_step_ms(m: usize, reps: usize) -> f64 {
+    1e3 * crate::krr::mm::algebra_step_seconds(m.clamp(1, 4000), 32, reps)
+}
+
 /// The triangles of a mesh (given as `reconstruct`'s arrays) that lie within `factor` × the
 /// mean point spacing of `points` (xyz, the cloud or an even subsample of it), as indices into
 /// the same vertices: the page's live trim, without re-running the reconstruction (the
@@ -274,6 +282,7 @@ fn tuning_object(t: &crate::field::TuningSummary) -> Object {
     set(&o, "backend", t.backend);
     set(&o, "n", t.n as f64);
     set(&o, "m", t.m as f64);
+    set(&o, "tunedOn", t.tuned_on as f64);
     set(&o, "stepsRun", t.steps_run as f64);
     set(&o, "bestStep", t.best_step as f64);
     set(&o, "stop", t.stop.as_str());

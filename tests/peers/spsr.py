@@ -13,7 +13,8 @@ For each cloud DATA/NAME-SIZE.ply (unoriented, noisy; see DATA/README.md):
      surface where the samples are sparse;
   3. writes OUT/NAME-SIZE.obj and one JSON line per cloud (stdout and OUT/spsr.jsonl): the
      timings in seconds (normals_s = PCA + orientation, poisson_s = Poisson + trimming; file
-     I/O excluded; Open3D uses every core; with --repeat N the fastest of N runs), vertex and
+     I/O excluded; Open3D uses every core; with --repeat N the fastest of N runs, and runs_s
+     each run's whole time), vertex and
      face counts, connected components, two watertight tests (closed_manifold: every edge in
      exactly two triangles, as `nkrr metrics`'s watertight, which also asks the two to agree
      on orientation; o3d_watertight: Open3D's is_watertight, which also rejects
@@ -110,12 +111,14 @@ def main():
                 print(f"skip {cloud}: missing", file=sys.stderr)
                 continue
             t_pca = t_orient = t_poisson = float("inf")
+            runs = []
             for _ in range(max(a.repeat, 1)):
                 pcd = o3d.io.read_point_cloud(cloud)
                 times = normals(pcd, a.k)
                 mesh, t = poisson(pcd, a.depth, a.trim)
                 t_pca, t_orient = min(t_pca, times[0]), min(t_orient, times[1])
                 t_poisson = min(t_poisson, t)
+                runs.append(round(times[0] + times[1] + t, 3))
             recon = os.path.join(a.out, f"{name}-{size}.obj")
             o3d.io.write_triangle_mesh(recon, mesh, write_vertex_normals=False,
                                        write_vertex_colors=False, write_triangle_uvs=False)
@@ -125,6 +128,7 @@ def main():
                 "depth": a.depth, "trim": a.trim, "k": a.k, "cores": os.cpu_count(),
                 "normals_s": round(t_pca + t_orient, 3), "pca_s": round(t_pca, 3),
                 "orient_s": round(t_orient, 3), "poisson_s": round(t_poisson, 3),
+                "runs_s": runs,
                 "vertices": len(mesh.vertices), "faces": len(mesh.triangles),
                 "components": int(len(comps)),
                 # edge-manifold with no boundary edge = closed 2-manifold surface;

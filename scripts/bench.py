@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""The speed benchmark: nkrr's per-stage times on clouds of 500, 3k, 10k and 100k points and the
+ratio of its end-to-end time to screened Poisson's on the same clouds, in the same run, so the
+figures survive a change of machine.
+
+    scripts/bench.sh [--sizes 500,3k,10k,100k] [--repeat 3] [--methods nkrr,network]
+                     [-- nkrr reconstruct options]
+
+The clouds are of one eval mesh (spot, a report shape of docs/fit.md; tests/data/eval) with the
+eval protocol's noise: NAME-500/3k/10k.ply of target/results/data and 100k points made the same
+way (scripts/results_clouds.py's scale clouds). nkrr: `/usr/bin/time nkrr reconstruct` (a whole
+process: start-up, reading, the adapter, every stage and the writing; the stage times are the
+CLI's own), the median of --repeat runs. Screened Poisson: tests/peers/spsr.py (Open3D, PCA
+normals + orientation + depth-8 Poisson, file reading excluded), the median of --repeat runs.
+Prints a Markdown table and writes target/bench/bench.json.
+"""
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SHAPE = "spot"
+CLOUDS = {
+    "500": "target/results/data/spot-500.ply",
+    "3k": "target/results/data/spot-3k.ply",
+    "10k": "target/results/data/spot-10k.ply",
+    "100k": "target/results/data/scale/scale-100000.ply",
+}
+STAGES = ["features", "pairs", "tuning", "mesh", "fit"]
+
+
+def log(msg):
+    print(f"[bench] {msg}", file=sys.stderr, flush=True)
+
+
+def run_nkrr(cloud, method, options, out_dir):
+    """One `nkrr reconstruct`: (wall seconds, {stage: seconds})."""
+    out = os.path.join(out_dir, "bench-out.glb")
+    cmd = ["/usr/bin/time", "-f", "wall %e", "target/release/nkrr", "reconstruct", cloud, "-o", out,
+           "--method", method] + options
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{p.stderr[-2000:]}")
+    wall = float(re.findall(r"^wall ([0-9.]+)$", p.stderr, re.M)[-1])
+    # Progress goes to stderr, the summary line to stdout.
+    summary = [line for line in (p.stdout + p.stderr).splitlines() if "(total " in line][-1]
+    stages = {k: float(v) for k, v in re.findall(r"\b([a-z]+) ([0-9.]+)s\b", summary)}
+    return wall, stages
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", default="500,3k,10k,100k")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--methods", default="nkrr,network")
+    ap.add_argument("--out", default="target/bench")
+    ap.add_argument("options", nargs="*", help="nkrr reconstruct options (after --)")
+    a = ap.parse_args()
+    sizes = a.sizes.split(",")
+    for s in sizes:
+        if s not in CLOUDS:
+            raise SystemExit(f"--sizes: {s} is not one of {', '.join(CLOUDS)}")
+    out = os.path.join(ROOT, a.out)
+    data = os.path.join(out, "data")
+    os.makedirs(data, exist_ok=True)
+    # spsr.py reads DATA/NAME-SIZE.ply: link the clouds under one name.
+    for s in sizes:
+        link = os.path.join(data, f"{SHAPE}-{s}.ply")
+        if os.path.lexists(link):
+            os.remove(link)
+        os.symlink(os.path.join(ROOT, CLOUDS[s]), link)
+
+    log(f"screened Poisson, {a.repeat} runs per cloud")
+    spsr_out = os.path.join(out, "spsr")
+    subprocess.run([os.path.join(ROOT, ".venv-peers/bin/python"), "tests/peers/spsr.py", "--data", data,
+                    "--sizes", ",".join(sizes), "--shapes", SHAPE, "--out", spsr_out, "--repeat", str(a.repeat)],
+                   cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
+    spsr = {}
+    for line in open(os.path.join(spsr_out, "spsr.jsonl")):
+        row = json.loads(line)
+        spsr[row["size"]] = statistics.median(row["runs_s"])
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for s in sizes:
+            cloud = os.path.join(ROOT, CLOUDS[s])
+            for method in a.methods.split(","):
+                runs = []
+                for i in range(a.repeat):
+                    log(f"{method} on {s} points, run {i + 1}/{a.repeat}")
+                    runs.append(run_nkrr(cloud, method, a.options, tmp))
+                walls = [w for w, _ in runs]
+                median = statistics.median(walls)
+                stages = runs[walls.index(median)][1] if median in walls else runs[0][1]
+                rows.append({"size": s, "method": method, "wall_s": median, "runs_s": walls,
+                             "stages_s": stages, "spsr_s": spsr[s], "ratio": median / spsr[s]})
+
+    print(f"| points | method | {' | '.join(STAGES)} | end to end s (median of {a.repeat}) | screened Poisson s | ratio |")
+    print("|---" * (len(STAGES) + 5) + "|")
+    for r in rows:
+        st = " | ".join(f"{r['stages_s'][k]:.2f}" if k in r["stages_s"] else "-" for k in STAGES)
+        print(f"| {r['size']} | {r['method']} | {st} | {r['wall_s']:.2f} | {r['spsr_s']:.2f} | {r['ratio']:.1f}x |")
+    with open(os.path.join(out, "bench.json"), "w") as f:
+        json.dump({"options": a.options, "repeat": a.repeat, "cores": os.cpu_count(), "rows": rows}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
