@@ -11,3 +11,6 @@ export CARGO_TARGET_DIR="$ROOT/target/web"
 # produces broken output), never download its own.
 export PATH="$ROOT/node_modules/.bin:$HOME/.cargo/bin:$PATH"
 export TRUNK_OFFLINE=true TRUNK_SKIP_VERSION_CHECK=true
+# WebAssembly SIMD (simd128: every browser with WebGPU has it), for std too (build-std): the
+# tuning's f64 m × m algebra runs on the worker's CPU at every step (tests/browser/tuning-step).
+export CARGO_TARGET_WASM32_UNKNOWN_UNKNOWN_RUSTFLAGS="-C target-feature=+simd128"

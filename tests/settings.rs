@@ -72,7 +72,16 @@ fn defaults_come_from_the_table() {
     for def in TABLE {
         assert_eq!(def.get(&s), def.default, "{}", def.key);
     }
-    // The paper's values, where it has them.
-    assert_eq!((s.m, s.steps), (500, 100));
+    // The paper's values, where it has them; its tuning (100 Adam steps at lr 0.1 on all pairs)
+    // stays reachable as settings (--steps 100 --lr 0.1 --all-pairs) beside the faster default
+    // that gives the same meshes (docs/speed.md).
+    assert_eq!(s.m, 500);
+    assert_eq!((s.steps, s.lr, s.tune_pairs), (30, 0.3, Some(4000)));
+    let paper = [("steps", 100.0), ("lr", 0.1)];
+    for (key, v) in paper {
+        assert_eq!(settings::by_key(key).unwrap().check(Value::Num(v)), Ok(Value::Num(v)), "{key}");
+    }
+    let pairs = settings::by_key("tunePairs").unwrap();
+    assert_eq!((pairs.off_flag, pairs.check(Value::Off)), (Some("--all-pairs"), Ok(Value::Off)));
     assert_eq!(settings::by_key("labelClip").unwrap().default, Value::Num(4.0));
 }
