@@ -13,7 +13,7 @@ use std::cell::RefCell;
 use crate::gpu::{Gpu, GpuError};
 use crate::krr::{self, KrrError, LengthScaleInit, TuneSettings};
 use crate::net::{GpuNet, GpuPlanes};
-use crate::settings::{Method, Settings};
+use crate::settings::{Method, SelectBy, Settings};
 
 /// Octaves of the coordinate encoding used by the "w/o features" ablation: x, and
 /// sin/cos(2^k π x) for k < FOURIER_OCTAVES, per axis (3 + 6·5 = 33 dimensions).
@@ -99,6 +99,11 @@ pub struct TuningSummary {
     pub n: usize,
     /// Training pairs the tuning saw (a subsample of `n`, or all of them).
     pub tuned_on: usize,
+    /// Pairs held out to score the iterates (0: the iterate was kept by its training error).
+    pub held_out: usize,
+    /// The held-out error of the first and of the kept iterate, when held out.
+    pub initial_score: Option<f64>,
+    pub best_score: Option<f64>,
     pub m: usize,
     pub steps_run: usize,
     pub best_step: usize,
@@ -168,29 +173,65 @@ pub async fn training_pairs(
     Ok(TrainingPairs { problem, inputs: points.len() })
 }
 
-/// The rows the tuning sees: `keep` of `n` rows, drawn (seeded) from the input points
-/// (`0..inputs`) and the extra points in proportion to their counts, so that the surface and
-/// the pseudo-labels keep their shares; `None` when there are no more than `keep` rows.
+/// Most pairs held out to score the tuning's iterates (see [`split_rows`]): enough that the
+/// score's noise is far below the differences between iterates, few enough that scoring an
+/// iterate (held × m × d) costs a small share of a step.
+pub const HELD_OUT_MAX: usize = 1000;
+
+/// `keep` of `rows` (sorted row indices), drawn (seeded) from the input points (rows below
+/// `inputs`) and the extra points in proportion to their counts, so that the surface and the
+/// pseudo-labels keep their shares; sorted.
+fn stratified(rows: &[usize], inputs: usize, keep: usize, seed: u64) -> Vec<usize> {
+    let split = rows.partition_point(|&r| r < inputs);
+    let keep = keep.min(rows.len());
+    let keep_inputs = ((keep as f64 * split as f64 / rows.len().max(1) as f64).round() as usize).min(split).min(keep);
+    let keep_extra = (keep - keep_inputs).min(rows.len() - split);
+    let mut out: Vec<usize> = krr::init::sample_rows(split, keep_inputs, seed).into_iter().map(|i| rows[i]).collect();
+    out.extend(krr::init::sample_rows(rows.len() - split, keep_extra, seed + 1).into_iter().map(|i| rows[split + i]));
+    out.sort_unstable();
+    out
+}
+
+/// Which of `n` training pairs (the first `inputs` of them the input points) the tuning sees and
+/// which score its iterates.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RowSplit {
+    /// The pairs the objective is tuned on; `None`: all of them.
+    pub tune: Option<Vec<usize>>,
+    /// The pairs held out to score each iterate (empty: select by the training error).
+    pub held: Vec<usize>,
+}
+
+/// Splits `n` pairs: `held` of them (at most a fifth) held out, stratified, and at most `keep`
+/// of the rest to tune on, stratified too.
 ///
-/// Why a subsample is enough: the objective is a mean over pairs plus traces that scale with
-/// n, and the length-scales and inducing points it tunes are a few thousand numbers, which a
-/// few thousand pairs determine; the n·m² Gram, the cost of a step, shrinks with n. β, which
-/// has to reach every point, is then solved once on all pairs.
-pub fn tuning_rows(n: usize, inputs: usize, keep: usize, seed: u64) -> Option<Vec<usize>> {
-    if keep >= n {
-        return None;
-    }
-    let inputs = inputs.min(n);
-    let keep_inputs = ((keep as f64 * inputs as f64 / n as f64).round() as usize).min(inputs).min(keep);
-    let mut rows = krr::init::sample_rows(inputs, keep_inputs, seed);
-    rows.extend(krr::init::sample_rows(n - inputs, keep - keep_inputs, seed + 1).into_iter().map(|i| i + inputs));
-    rows.sort_unstable();
-    Some(rows)
+/// Why a subsample is enough to tune on: the objective (with `Ridge::full_n`) is estimated from
+/// a uniform subsample, and the length-scales and inducing points it tunes are a few thousand
+/// numbers, which a few thousand pairs determine; the n·m² Gram, the cost of a step, shrinks
+/// with n. β, which has to reach every point, is then solved once on all pairs.
+pub fn split_rows(n: usize, inputs: usize, keep: Option<usize>, held: usize, seed: u64) -> RowSplit {
+    let all: Vec<usize> = (0..n).collect();
+    let held = stratified(&all, inputs, held.min(n / 5), seed);
+    let rest: Vec<usize> = if held.is_empty() {
+        all
+    } else {
+        let mut is_held = vec![false; n];
+        held.iter().for_each(|&r| is_held[r] = true);
+        (0..n).filter(|&r| !is_held[r]).collect()
+    };
+    let tune = match keep {
+        Some(k) if k < rest.len() => Some(stratified(&rest, inputs, k, seed + 2)),
+        _ if rest.len() < n => Some(rest),
+        _ => None,
+    };
+    RowSplit { tune, held }
 }
 
 /// Initialises (Z from rows of X, length-scales from the features' spread) and tunes the
-/// Nyström KRR with `m` inducing points on [`Settings::tune_pairs`] of the pairs, keeping the
-/// parameters with the lowest training error (method.md §4), then solves β on all pairs.
+/// Nyström KRR with `m` inducing points on [`Settings::tune_pairs`] of the pairs (see
+/// [`split_rows`]), keeping the parameters with the lowest error on held-out pairs or, as the
+/// paper does, the lowest training error (method.md §4; [`Settings::select_by`]), then solves β
+/// on all pairs.
 /// `progress(step, loss)` returning false cancels.
 pub async fn fit(
     gpu: &Gpu,
@@ -201,7 +242,10 @@ pub async fn fit(
 ) -> Result<(KrrField, TuningSummary), FitError> {
     debug_assert_eq!(settings.method, Method::Nkrr);
     let all = &pairs.problem;
-    let subset = settings.tune_pairs.and_then(|k| tuning_rows(all.n(), pairs.inputs, k, 5)).map(|rows| all.select(&rows));
+    let held = if settings.select_by == SelectBy::HeldOut { HELD_OUT_MAX } else { 0 };
+    let split = split_rows(all.n(), pairs.inputs, settings.tune_pairs, held, 5);
+    let subset = split.tune.as_ref().map(|rows| all.select(rows));
+    let validation = (!split.held.is_empty()).then(|| all.select(&split.held));
     let problem = subset.as_ref().unwrap_or(all);
     let m = m.clamp(1, problem.n());
     let init = krr::init_params(problem, m, 3, LengthScaleInit::default());
@@ -215,16 +259,26 @@ pub async fn fit(
         tune_z: settings.tune_z,
         ..Default::default()
     };
+    // The held-out pairs' mean squared error under the iterate's own β.
+    let score = |params: &krr::Params, eval: &krr::Eval| -> Result<Option<f64>, KrrError> {
+        let Some(v) = &validation else { return Ok(None) };
+        let g = krr::predict(&eval.beta, &params.z, &params.log_s, v.x())?;
+        Ok(Some(g.iter().zip(v.y()).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / v.n() as f64))
+    };
     let on_gpu = settings.krr_backend.on_gpu(gpu.is_software());
     let report = |step: usize, eval: &krr::Eval| progress(step, eval.loss);
     let (result, predictor, evaluations, phases, beta) = if on_gpu {
         let objective = krr::GpuObjective::new(gpu, problem, ridge).await.map_err(KrrError::from)?;
         let objective = RefCell::new(objective);
         let evaluate = |params: krr::Params, needs_grad: bool| {
-            let objective = &objective;
-            async move { objective.borrow_mut().evaluate(&params, needs_grad).await }
+            let (objective, score) = (&objective, &score);
+            async move {
+                let (e, g) = objective.borrow_mut().evaluate(&params, needs_grad).await?;
+                let s = score(&params, &e)?;
+                Ok((e, g, s))
+            }
         };
-        let result = krr::tune_async(evaluate, init, &ts, report).await?;
+        let result = krr::tune_async_scored(evaluate, init, &ts, report).await?;
         let mut objective = objective.into_inner();
         let mut evaluations = objective.evaluations;
         let mut phases = objective.total_timings;
@@ -242,7 +296,11 @@ pub async fn fit(
         (result, Some(objective.predictor().clone()), evaluations, Some(phases), beta)
     } else {
         let mut objective = krr::Reference { problem, settings: ridge };
-        let result = krr::tune(&mut objective, init, &ts, report)?;
+        let result = if validation.is_some() {
+            krr::tune_scored(&mut objective, init, &ts, |p: &krr::Params, e: &krr::Eval| score(p, e).map(|s| s.unwrap_or(0.0)), report)?
+        } else {
+            krr::tune(&mut objective, init, &ts, report)?
+        };
         let mut evaluations = result.history.len();
         let beta = if subset.is_some() && !matches!(result.stop, krr::StopReason::Cancelled) {
             evaluations += 1;
@@ -261,6 +319,9 @@ pub async fn fit(
         backend: if on_gpu { "gpu" } else { "cpu" },
         n: all.n(),
         tuned_on: problem.n(),
+        held_out: split.held.len(),
+        initial_score: first.score,
+        best_score: result.history.iter().find(|h| h.step == result.best_step).and_then(|h| h.score),
         m,
         steps_run: result.history.len() - 1,
         best_step: result.best_step,
@@ -279,27 +340,43 @@ pub async fn fit(
 
 #[cfg(test)]
 mod tests {
-    use super::tuning_rows;
+    use super::split_rows;
 
     #[test]
     fn tuning_rows_keep_each_kind_in_proportion() {
         // 3000 input points and 3000 extra points: half of the 1000 rows from each.
-        let rows = tuning_rows(6000, 3000, 1000, 5).expect("a subsample");
+        let rows = split_rows(6000, 3000, Some(1000), 0, 5).tune.expect("a subsample");
         assert_eq!(rows.len(), 1000);
         assert!(rows.windows(2).all(|w| w[0] < w[1]), "sorted and distinct");
         assert_eq!(rows.iter().filter(|&&i| i < 3000).count(), 500);
         assert!(*rows.last().unwrap() < 6000);
         // Unequal kinds keep their shares; the same seed gives the same rows.
-        let rows = tuning_rows(4000, 1000, 400, 9).unwrap();
+        let rows = split_rows(4000, 1000, Some(400), 0, 9).tune.unwrap();
         assert_eq!(rows.iter().filter(|&&i| i < 1000).count(), 100);
-        assert_eq!(tuning_rows(4000, 1000, 400, 9).unwrap(), rows);
-        assert_ne!(tuning_rows(4000, 1000, 400, 10).unwrap(), rows);
+        assert_eq!(split_rows(4000, 1000, Some(400), 0, 9).tune.unwrap(), rows);
+        assert_ne!(split_rows(4000, 1000, Some(400), 0, 10).tune.unwrap(), rows);
     }
 
     #[test]
     fn tuning_rows_are_all_rows_when_there_are_few() {
-        assert_eq!(tuning_rows(500, 250, 500, 5), None);
-        assert_eq!(tuning_rows(500, 250, 4000, 5), None);
-        assert_eq!(tuning_rows(501, 250, 500, 5).map(|r| r.len()), Some(500));
+        assert_eq!(split_rows(500, 250, Some(500), 0, 5).tune, None);
+        assert_eq!(split_rows(500, 250, Some(4000), 0, 5).tune, None);
+        assert_eq!(split_rows(500, 250, None, 0, 5).tune, None);
+        assert_eq!(split_rows(501, 250, Some(500), 0, 5).tune.map(|r| r.len()), Some(500));
+    }
+
+    #[test]
+    fn held_out_rows_are_apart_from_the_tuning_rows() {
+        // At most a fifth held out, stratified; the tuning rows are the others (subsampled).
+        let s = split_rows(1000, 500, Some(4000), 1000, 3);
+        let tune = s.tune.expect("the held-out rows are left out");
+        assert_eq!((s.held.len(), tune.len()), (200, 800));
+        assert_eq!(s.held.iter().filter(|&&i| i < 500).count(), 100);
+        assert!(s.held.iter().all(|r| tune.binary_search(r).is_err()));
+        let s = split_rows(20000, 10000, Some(4000), 1000, 3);
+        let tune = s.tune.unwrap();
+        assert_eq!((s.held.len(), tune.len()), (1000, 4000));
+        assert!(s.held.iter().all(|r| tune.binary_search(r).is_err()));
+        assert_eq!(tune.iter().filter(|&&i| i < 10000).count(), 2000);
     }
 }

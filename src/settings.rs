@@ -47,6 +47,15 @@ impl KrrBackend {
     }
 }
 
+/// Which of the tuning's iterates is kept.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SelectBy {
+    /// The lowest error on held-out pairs, which also stops the tuning once it no longer falls.
+    HeldOut,
+    /// The lowest training error (the paper).
+    Training,
+}
+
 /// Everything a reconstruction can be told. The defaults are [`TABLE`]'s (the paper's where it
 /// has one); see each entry there for what a field means and its range.
 #[derive(Clone, Debug, PartialEq)]
@@ -59,6 +68,7 @@ pub struct Settings {
     pub steps: usize,
     pub lr: f64,
     pub tune_pairs: Option<usize>,
+    pub select_by: SelectBy,
     pub lambda: f64,
     pub tune_theta: bool,
     pub tune_z: bool,
@@ -85,6 +95,7 @@ impl Default for Settings {
             steps: 0,
             lr: 0.0,
             tune_pairs: None,
+            select_by: SelectBy::Training,
             lambda: 0.0,
             tune_theta: false,
             tune_z: false,
@@ -278,6 +289,22 @@ pub static TABLE: &[Setting] = &[
             Value::Num(x) => Some(x as usize),
             _ => None,
         },
+        ..BASE
+    },
+    Setting {
+        key: "selectBy",
+        flag: "--select-by",
+        label: "Keep the iterate with",
+        help: "which tuning iterate is kept: the lowest error on held-out pairs (and stop when it stops falling), or the lowest training error (the paper)",
+        kind: Kind::Choice(&[("heldout", "lowest held-out error"), ("training", "lowest training error (paper)")]),
+        default: Value::Choice("heldout"),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Choice(match s.select_by {
+            SelectBy::HeldOut => "heldout",
+            SelectBy::Training => "training",
+        }),
+        set: |s, v| s.select_by = if choice(v) == "training" { SelectBy::Training } else { SelectBy::HeldOut },
         ..BASE
     },
     Setting {

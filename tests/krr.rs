@@ -709,3 +709,36 @@ fn a_subsample_estimates_the_full_objective() {
         assert_eq!((est.beta.clone(), est.d_term), (own.beta.clone(), own.d_term));
     }
 }
+
+/// Validated tuning (`tune_scored`): the iterate with the lowest score is kept, not the lowest
+/// training error, and the loop stops once the score has not improved for `patience`
+/// evaluations, even while the loss and the training error still fall.
+#[test]
+fn scored_tuning_keeps_the_lowest_score_and_stops_when_it_rises() {
+    struct Falling(usize);
+    impl nkrr::krr::Objective for Falling {
+        fn eval_grad(&mut self, p: &Params) -> Result<(Eval, nkrr::krr::Grad), KrrError> {
+            self.0 += 1;
+            let v = 1.0 / self.0 as f64;
+            let eval = Eval { loss: v, data_fit: v, rkhs_norm2: 0.0, d_term: 0.0, t1: 0.0, t2: 0.0, beta: vec![0.0] };
+            Ok((eval, nkrr::krr::Grad { log_s: vec![1e-3; p.log_s.len()], z: vec![1e-3; p.z.len()] }))
+        }
+    }
+    let init = Params { log_s: vec![0.0], z: vec![0.0] };
+    let ts = TuneSettings { steps: 100, patience: 4, ..Default::default() };
+    // The score falls to its lowest at the 7th evaluation (step 6), then rises.
+    let mut calls = 0;
+    let score = |_: &Params, _: &Eval| {
+        calls += 1;
+        Ok((calls as f64 - 7.0).abs() + 1.0)
+    };
+    let r = nkrr::krr::tune_scored(&mut Falling(0), init.clone(), &ts, score, |_, _| true).unwrap();
+    assert_eq!(r.best_step, 6);
+    assert_eq!(r.stop, StopReason::Converged);
+    assert_eq!(r.history.len(), 7 + 4, "stops after `patience` evaluations without a better score");
+    assert_eq!(r.history[6].score, Some(1.0));
+    // Unscored, the same objective runs to the end and keeps the last (lowest training error).
+    let r = tune(&mut Falling(0), init, &ts, |_, _| true).unwrap();
+    assert_eq!((r.best_step, r.stop), (100, StopReason::MaxSteps));
+    assert!(r.history.iter().all(|h| h.score.is_none()));
+}

@@ -313,8 +313,14 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         .map_err(|e| fail(format!("{input}: {e}")))?;
     if let Some(t) = &rec.tuning {
         tell!(
-            "tuning ({}): tuned on {} of {} pairs, m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e} (best at step {})",
-            t.backend, t.tuned_on, t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit, t.best_step
+            "tuning ({}): tuned on {} of {} pairs, m {}, {} steps ({}), loss {:.5} -> {:.5}, training error {:.3e} -> {:.3e}{} (kept step {}, {})",
+            t.backend, t.tuned_on, t.n, t.m, t.steps_run, t.stop, t.initial_loss, t.final_loss, t.initial_data_fit, t.best_data_fit,
+            match (t.initial_score, t.best_score) {
+                (Some(a), Some(b)) => format!(", held-out error {a:.3e} -> {b:.3e}"),
+                _ => String::new(),
+            },
+            t.best_step,
+            if t.held_out > 0 { format!("lowest error on {} held-out pairs", t.held_out) } else { "lowest training error".to_string() }
         );
         if let Some(p) = &t.phases {
             tell!("tuning phases over {} evaluations: {}", t.evaluations, p.summary());

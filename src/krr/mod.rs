@@ -39,4 +39,4 @@ pub use gpu::{GpuObjective, GpuPredictor, KrrGpuError, PhaseTimings};
 pub use init::{init_length_scales, init_params, init_z, LengthScaleInit};
 pub use problem::{Eval, Grad, Objective, Params, Problem, Ridge, Weighting};
 pub use reference::{objective, objective_and_grad, predict, Reference};
-pub use tune::{tune, tune_async, StepLog, StopReason, TuneResult, TuneSettings, Tuner};
+pub use tune::{tune, tune_async, tune_async_scored, tune_scored, Scored, StepLog, StopReason, TuneResult, TuneSettings, Tuner};

@@ -1,12 +1,19 @@
 //! Test-time tuning: Adam on `(log s, Z)` (`docs/method.md` §4, last paragraph).
 //!
-//! Defaults follow the paper: Adam, lr 0.1, 100 steps, and the returned parameters are those with
+//! [`TuneSettings::default`] follows the paper: Adam, lr 0.1, 100 steps (the product's defaults are
+//! in `settings.rs`), and the returned parameters are those with
 //! the **lowest training squared error** `(1/n)‖g(X) − y‖²` seen — not the lowest loss, and not
 //! the last iterate: the objective is a model-selection criterion whose minimiser need not fit
 //! best, and Adam at lr 0.1 is not monotone. On top of the paper: an early stop when neither the
 //! loss nor the training error has improved by a relative `rel_tol` for `patience` steps (the
 //! loss alone can plateau while the error we keep the best of still falls), switches to freeze θ (the
 //! length-scales) or Z, and a progress callback that can cancel.
+//!
+//! **Validated tuning** ([`tune_scored`], [`tune_async_scored`]): the driver also scores each
+//! iterate (the error on held-out pairs, see `field::fit`); the tuner then keeps the iterate
+//! with the lowest score instead of the lowest training error, which rewards over-fitting, and
+//! stops once the score has not improved by `rel_tol` for `patience` evaluations: a criterion,
+//! not a count.
 //!
 //! The loop is generic over [`Objective`], so the f64 [`Reference`](super::reference::Reference) and a GPU
 //! implementation are driven by the same code.
@@ -73,12 +80,15 @@ pub struct StepLog {
     pub step: usize,
     pub loss: f64,
     pub data_fit: f64,
+    /// The driver's score (held-out error) in validated tuning.
+    pub score: Option<f64>,
 }
 
 /// Result of [`tune`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct TuneResult {
-    /// The parameters with the lowest training squared error seen.
+    /// The parameters with the lowest training squared error seen (the lowest score, in
+    /// validated tuning).
     pub params: Params,
     /// Their evaluation (β for [`predict`](super::predict) is `eval.beta`).
     pub eval: Eval,
@@ -94,9 +104,29 @@ pub struct TuneResult {
 ///
 /// Errors only when the settings are invalid or the very first evaluation fails; a later failure
 /// ends the loop with [`StopReason::Failed`] and the best parameters seen.
-pub fn tune<O, F>(objective: &mut O, init: Params, settings: &TuneSettings, mut progress: F) -> Result<TuneResult, KrrError>
+pub fn tune<O, F>(objective: &mut O, init: Params, settings: &TuneSettings, progress: F) -> Result<TuneResult, KrrError>
 where
     O: Objective + ?Sized,
+    F: FnMut(usize, &Eval) -> bool,
+{
+    drive(objective, init, settings, None::<fn(&Params, &Eval) -> Result<f64, KrrError>>, progress)
+}
+
+/// [`tune`], keeping the iterate with the lowest `score(params, eval)` (e.g. the error on
+/// held-out pairs) and stopping when it no longer improves (see the module docs).
+pub fn tune_scored<O, S, F>(objective: &mut O, init: Params, settings: &TuneSettings, score: S, progress: F) -> Result<TuneResult, KrrError>
+where
+    O: Objective + ?Sized,
+    S: FnMut(&Params, &Eval) -> Result<f64, KrrError>,
+    F: FnMut(usize, &Eval) -> bool,
+{
+    drive(objective, init, settings, Some(score), progress)
+}
+
+fn drive<O, S, F>(objective: &mut O, init: Params, settings: &TuneSettings, mut score: Option<S>, mut progress: F) -> Result<TuneResult, KrrError>
+where
+    O: Objective + ?Sized,
+    S: FnMut(&Params, &Eval) -> Result<f64, KrrError>,
     F: FnMut(usize, &Eval) -> bool,
 {
     let mut tuner = Tuner::new(init, settings)?;
@@ -106,26 +136,49 @@ where
         } else {
             objective.eval(params).map(|e| (e, None))
         };
-        tuner.supply(result, &mut progress)?;
+        let result = result.and_then(|(e, g)| match score.as_mut() {
+            Some(score) => score(params, &e).map(|s| (e, g, Some(s))),
+            None => Ok((e, g, None)),
+        });
+        tuner.supply_scored(result, &mut progress)?;
     }
     Ok(tuner.finish())
 }
 
 /// [`tune`] with an asynchronous objective (the browser's GPU readbacks resolve on its event
 /// loop): `evaluate(params, needs_grad)` resolves to the evaluation and, when asked, the gradient.
-pub async fn tune_async<E, Fut, F>(mut evaluate: E, init: Params, settings: &TuneSettings, mut progress: F) -> Result<TuneResult, KrrError>
+pub async fn tune_async<E, Fut, F>(mut evaluate: E, init: Params, settings: &TuneSettings, progress: F) -> Result<TuneResult, KrrError>
 where
     E: FnMut(Params, bool) -> Fut,
     Fut: std::future::Future<Output = Result<(Eval, Option<Grad>), KrrError>>,
     F: FnMut(usize, &Eval) -> bool,
 {
+    let scored = |params: Params, needs_grad: bool| {
+        let fut = evaluate(params, needs_grad);
+        async move { fut.await.map(|(e, g)| (e, g, None)) }
+    };
+    tune_async_scored(scored, init, settings, progress).await
+}
+
+/// [`tune_async`] where `evaluate` also resolves to a score (see [`tune_scored`]); `None`
+/// selects by the training error as [`tune`] does.
+pub async fn tune_async_scored<E, Fut, F>(mut evaluate: E, init: Params, settings: &TuneSettings, mut progress: F) -> Result<TuneResult, KrrError>
+where
+    E: FnMut(Params, bool) -> Fut,
+    Fut: std::future::Future<Output = Result<Scored, KrrError>>,
+    F: FnMut(usize, &Eval) -> bool,
+{
     let mut tuner = Tuner::new(init, settings)?;
     while let Some((params, needs_grad)) = tuner.next_request() {
         let result = evaluate(params.clone(), needs_grad).await;
-        tuner.supply(result, &mut progress)?;
+        tuner.supply_scored(result, &mut progress)?;
     }
     Ok(tuner.finish())
 }
+
+/// One evaluation as a driver hands it to the tuner: the evaluation, its gradient (all but the
+/// last step) and, in validated tuning, its score.
+pub type Scored = (Eval, Option<Grad>, Option<f64>);
 
 /// The tuning loop as a state machine: it says which parameters to evaluate next and takes the
 /// result, so blocking and asynchronous drivers run exactly the same steps.
@@ -135,10 +188,12 @@ pub struct Tuner {
     params: Params,
     adam_s: Adam,
     adam_z: Adam,
-    best: Option<(Params, Eval, usize)>,
+    /// The kept iterate and its selection key (the score, or the training error).
+    best: Option<(Params, Eval, usize, f64)>,
     history: Vec<StepLog>,
     best_loss: f64,
     best_fit: f64,
+    best_score: f64,
     stale: usize,
     step: usize,
     stop: Option<StopReason>,
@@ -166,6 +221,7 @@ impl Tuner {
             history: Vec::new(),
             best_loss: f64::INFINITY,
             best_fit: f64::INFINITY,
+            best_score: f64::INFINITY,
             stale: 0,
             step: 0,
             stop: None,
@@ -190,15 +246,24 @@ impl Tuner {
     where
         F: FnMut(usize, &Eval) -> bool,
     {
+        self.supply_scored(result.map(|(e, g)| (e, g, None)), progress)
+    }
+
+    /// [`Tuner::supply`] with the iterate's score, if the driver validates (see the module docs).
+    pub fn supply_scored<F>(&mut self, result: Result<Scored, KrrError>, progress: &mut F) -> Result<(), KrrError>
+    where
+        F: FnMut(usize, &Eval) -> bool,
+    {
         let s = self.s;
         let step = self.step;
         let last = self.is_last();
-        let result = result.and_then(|(e, g)| match (&g, last) {
-            (Some(g), _) => check_grad(&self.params, g).map(|_| (e, Some(g.clone()))),
-            (None, true) => Ok((e, None)),
+        let result = result.and_then(|(e, g, score)| match (&g, last) {
+            _ if score.is_some_and(|v| !v.is_finite()) => Err(KrrError::NonFinite("tuning score".into())),
+            (Some(g), _) => check_grad(&self.params, g).map(|_| (e, Some(g.clone()), score)),
+            (None, true) => Ok((e, None, score)),
             (None, false) => Err(KrrError::Shape("the tuner needs a gradient for this step".into())),
         });
-        let (eval, grad) = match result {
+        let (eval, grad, score) = match result {
             Ok(v) => v,
             Err(e) if self.best.is_none() => return Err(e),
             Err(e) => {
@@ -206,12 +271,13 @@ impl Tuner {
                 return Ok(());
             }
         };
-        self.history.push(StepLog { step, loss: eval.loss, data_fit: eval.data_fit });
-        let improved_fit = self.best.as_ref().is_none_or(|b| eval.data_fit < b.1.data_fit);
+        self.history.push(StepLog { step, loss: eval.loss, data_fit: eval.data_fit, score });
+        let key = score.unwrap_or(eval.data_fit);
+        let improved_key = self.best.as_ref().is_none_or(|b| key < b.3);
         let (loss, fit) = (eval.loss, eval.data_fit);
         let go_on = progress(step, &eval);
-        if improved_fit {
-            self.best = Some((self.params.clone(), eval, step));
+        if improved_key {
+            self.best = Some((self.params.clone(), eval, step, key));
         }
         if !go_on {
             self.stop = Some(StopReason::Cancelled);
@@ -221,11 +287,17 @@ impl Tuner {
             self.stop = Some(if self.nothing { StopReason::NothingToTune } else { StopReason::MaxSteps });
             return Ok(());
         }
-        let loss_improved = loss < self.best_loss - s.rel_tol * self.best_loss.abs();
-        let fit_improved = fit < self.best_fit - s.rel_tol * self.best_fit.abs();
+        let better = |v: f64, best: f64| v < best - s.rel_tol * best.abs();
+        let progressed = match score {
+            // Validated: only the score counts; the loss may fall for ever while the iterate
+            // over-fits.
+            Some(v) => better(v, self.best_score),
+            None => better(loss, self.best_loss) || better(fit, self.best_fit),
+        };
         self.best_loss = self.best_loss.min(loss);
         self.best_fit = self.best_fit.min(fit);
-        if step == 0 || loss_improved || fit_improved {
+        self.best_score = self.best_score.min(score.unwrap_or(f64::INFINITY));
+        if step == 0 || progressed {
             self.stale = 0;
         } else {
             self.stale += 1;
@@ -248,7 +320,7 @@ impl Tuner {
     /// The best parameters seen (at least one evaluation must have succeeded, which
     /// [`Tuner::supply`] guarantees by returning the first failure as an error).
     pub fn finish(self) -> TuneResult {
-        let (params, eval, best_step) = self.best.expect("at least one evaluation succeeded");
+        let (params, eval, best_step, _) = self.best.expect("at least one evaluation succeeded");
         TuneResult { params, eval, best_step, stop: self.stop.unwrap_or(StopReason::MaxSteps), history: self.history }
     }
 }

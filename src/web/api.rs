@@ -283,6 +283,9 @@ fn tuning_object(t: &crate::field::TuningSummary) -> Object {
     set(&o, "n", t.n as f64);
     set(&o, "m", t.m as f64);
     set(&o, "tunedOn", t.tuned_on as f64);
+    set(&o, "heldOut", t.held_out as f64);
+    set(&o, "initialScore", t.initial_score.map_or(JsValue::NULL, JsValue::from_f64));
+    set(&o, "bestScore", t.best_score.map_or(JsValue::NULL, JsValue::from_f64));
     set(&o, "stepsRun", t.steps_run as f64);
     set(&o, "bestStep", t.best_step as f64);
     set(&o, "stop", t.stop.as_str());
