@@ -206,7 +206,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     let field = if nkrr {
         let cd = net_gpu::decode_chunk(cfg, b, size.batch);
         // The CPU predictor (nkrr with the f64 objective) widens each batch's features to f64.
-        let host = if krr_on_gpu { 0 } else { reference::predict_host_bytes(size.batch, d) };
+        let host = if krr_on_gpu { 0 } else { reference::predict_host_bytes(size.batch, d) + reference::predict_block_bytes(m, d) };
         krr_gpu::predict_footprint(m, d, cd).and(Footprint::host(host))
     } else {
         Footprint::default()

@@ -742,3 +742,20 @@ fn scored_tuning_keeps_the_lowest_score_and_stops_when_it_rises() {
     assert_eq!((r.best_step, r.stop), (100, StopReason::MaxSteps));
     assert!(r.history.iter().all(|h| h.score.is_none()));
 }
+
+/// `predict` (blocks of the threaded kernel matrix folded with β) against the definition, one
+/// query and one centre at a time, across the block boundary (4096 queries).
+#[test]
+fn predict_matches_the_definition() {
+    let (nq, m, d) = (5000, 23, 6);
+    let queries = random_problem(nq, d, 101);
+    let p = random_params(&queries, m, 102);
+    let beta: Vec<f64> = uniform_vec(m, 103).iter().map(|v| v - 0.5).collect();
+    let got = predict(&beta, &p.z, &p.log_s, queries.x()).unwrap();
+    let inv_s = kernel::inv_scales(&p.log_s);
+    assert_eq!(got.len(), nq);
+    for (i, q) in queries.x().chunks_exact(d).enumerate() {
+        let want: f64 = (0..m).map(|j| beta[j] * kernel::k_pair(q, &p.z[j * d..(j + 1) * d], &inv_s)).sum();
+        assert!((got[i] - want).abs() <= 1e-12 * (1.0 + want.abs()), "query {i}: {} vs {want}", got[i]);
+    }
+}
