@@ -6,7 +6,7 @@ the Python environment first.
 
 Every phase writes its raw output under WORK (target/results) and is skipped when that output is
 already there, so a second run only redoes the report; --fresh redoes everything and --redo
-PHASE one phase. Phases: main, spsr, rerun, scaling, ablations, render; then the report.
+PHASE one phase. Phases: main, spsr, rerun, scaling, ablations, render, bench; then the report.
 
     .venv-peers/bin/python scripts/results.py [--work target/results] [--fresh] [--redo PHASE]
         [--ablation-shapes A,B,...] [--scale-nkrr-max 10000]
@@ -165,6 +165,17 @@ def scaling_phase(work, nkrr_max):
             f.flush()
             done[(method, n)] = r
     return sorted(done.values(), key=lambda r: (r["method"], r["points"]))
+
+
+def bench_phase(work, run):
+    """scripts/bench.py: median end-to-end times on 500 / 3k / 10k / 100k points and the ratio to
+    screened Poisson on the same clouds in the same run (the figures that survive a change of
+    machine). Returns its rows, or [] when it has not run."""
+    out = os.path.join(work, "bench", "bench.json")
+    if run and not os.path.exists(out):
+        log("bench: scripts/bench.py (3 runs per cloud and method)")
+        sh(["python3", "scripts/bench.py", "--out", os.path.join(work, "bench"), "--repeat", "3"])
+    return json.load(open(out))["rows"] if os.path.exists(out) else []
 
 
 def render_phase(work, shapes, size):
@@ -361,7 +372,7 @@ def compare_table(main_rows, rows, what, times=False):
     return "\n".join(lines), {k: max(v) if v else None for k, v in diffs.items()}
 
 
-def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, render_png):
+def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, render_png, bench):
     runs = main["runs"]
     shapes = sorted({r["shape"] for r in runs})
     rows = runs + spsr
@@ -496,6 +507,25 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w("\n".join(st))
     w("")
 
+    w("## Speed against screened Poisson\n")
+    if bench:
+        w("`scripts/bench.py` (also `scripts/bench.sh`): `nkrr reconstruct` three times per cloud on "
+          "clouds of spot at the eval noise (500 / 3k / 10k from the eval set, 100k a scaling cloud) "
+          "and screened Poisson (`tests/peers/spsr.py`, depth 8, PCA normals and orientation, "
+          "reading excluded) three times on the same clouds in the same run: the median wall "
+          "times, the stage times of the median nkrr run, and the ratio, which is what survives a "
+          "change of machine. Run alone on the machine, unlike the evals above.\n")
+        w("| points | method | features | pairs | tuning | mesh | fit | end to end s | screened Poisson s | ratio |")
+        w("|---|---|---|---|---|---|---|---|---|---|")
+        for r in bench:
+            st = " | ".join(fmt(r["stages_s"].get(k), 2) if k in r["stages_s"] else "-"
+                            for k in ("features", "pairs", "tuning", "mesh", "fit"))
+            w(f"| {r['size']} | {r['method']} | {st} | {fmt(r['wall_s'], 2)} | {fmt(r['spsr_s'], 2)} | "
+              f"{r['ratio']:.1f}x |")
+        w("")
+    else:
+        w("Not run (phase `bench`).\n")
+
     w("## Scaling: time and peak memory vs cloud size\n")
     w("Synthetic noisy clouds: N points uniform on `spot.obj` with the eval noise (sigma = 0.005 x "
       "the longest bbox side, seed 4), `nkrr reconstruct --method network|nkrr` at the defaults "
@@ -545,16 +575,16 @@ def main():
     ap.add_argument("--scale-nkrr-max", type=int, default=10000,
                     help="largest scaling cloud nkrr (defaults) runs on; the network runs on all")
     ap.add_argument("--render-shapes", default="stanford-bunny,fandisk")
-    ap.add_argument("--phases", default="main,spsr,rerun,scaling,ablations,render,report",
+    ap.add_argument("--phases", default="main,spsr,rerun,scaling,ablations,render,bench,report",
                     help="phases to run (others are read from WORK if there)")
     a = ap.parse_args()
     work = a.work
     redo = set(a.redo.split(",")) - {""}
     if a.fresh:
-        redo = {"main", "spsr", "rerun", "scaling", "ablations", "render"}
+        redo = {"main", "spsr", "rerun", "scaling", "ablations", "render", "bench"}
     files = {"main": ["main.json", "main.wall"], "spsr": ["spsr"],
              "rerun": ["rerun.json", "rerun.wall"], "scaling": ["scaling.jsonl"],
-             "ablations": ["ablations.json", "ablations.wall"]}
+             "ablations": ["ablations.json", "ablations.wall"], "bench": ["bench"]}
     for p in redo:
         for f in files.get(p, []):
             q = os.path.join(work, f)
@@ -579,13 +609,16 @@ def main():
         ablations_phase(work, abl_shapes, run=True)
     if "render" in phases:
         render_phase(work, a.render_shapes.split(","), "3k")
+    if "bench" in phases:
+        bench_phase(work, run=True)
     if "report" in phases:
         abl = ablations_phase(work, abl_shapes, run=False)
         if abl:
             abl_shapes = sorted({r["shape"] for r in abl["runs"]})
         report(work, load_eval(os.path.join(work, "main")), spsr_phase(work),
                load_eval(os.path.join(work, "rerun")), seeds_phase(work), scaling_phase(work, a.scale_nkrr_max),
-               abl, abl_shapes, a.scale_nkrr_max, render_phase(work, a.render_shapes.split(","), "3k"))
+               abl, abl_shapes, a.scale_nkrr_max, render_phase(work, a.render_shapes.split(","), "3k"),
+               bench_phase(work, run=False))
 
 if __name__ == "__main__":
     main()

@@ -743,8 +743,9 @@ fn scored_tuning_keeps_the_lowest_score_and_stops_when_it_rises() {
     assert!(r.history.iter().all(|h| h.score.is_none()));
 }
 
-/// `predict` (blocks of the threaded kernel matrix folded with β) against the definition, one
-/// query and one centre at a time, across the block boundary (4096 queries).
+/// `predict` (blocks of the kernel matrix by the expanded distance, folded with β) against the
+/// definition, one query and one centre at a time, across the block boundary (4096 queries);
+/// and the expanded kernel against the difference form, also for points far from the origin.
 #[test]
 fn predict_matches_the_definition() {
     let (nq, m, d) = (5000, 23, 6);
@@ -757,5 +758,13 @@ fn predict_matches_the_definition() {
     for (i, q) in queries.x().chunks_exact(d).enumerate() {
         let want: f64 = (0..m).map(|j| beta[j] * kernel::k_pair(q, &p.z[j * d..(j + 1) * d], &inv_s)).sum();
         assert!((got[i] - want).abs() <= 1e-12 * (1.0 + want.abs()), "query {i}: {} vs {want}", got[i]);
+    }
+    for offset in [0.0, 30.0] {
+        let a: Vec<f64> = queries.x()[..300 * d].iter().map(|v| v + offset).collect();
+        let b: Vec<f64> = p.z.iter().map(|v| v + offset).collect();
+        let (k1, k2) = (kernel::cross(&a, &b, &inv_s), kernel::cross_expanded(&a, &b, &inv_s));
+        let worst = k1.iter().zip(&k2).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+        println!("expanded vs difference kernel, offset {offset}: worst {worst:.1e}");
+        assert!(worst < 1e-10, "offset {offset}: {worst:e}");
     }
 }

@@ -179,12 +179,12 @@ pub fn predict(beta: &[f64], z: &[f64], log_s: &[f64], queries: &[f64]) -> Resul
     if beta.iter().chain(z).chain(log_s).any(|v| !v.is_finite()) {
         return Err(KrrError::NonFinite("predict: beta, z or log_s".into()));
     }
-    // Row blocks of K(queries, Z) from the threaded kernel, each folded with β at once: the
-    // mesher asks for ~300k queries, and a query at a time ran on one core.
+    // Row blocks of K(queries, Z) from one GEMM each (`kernel::cross_expanded`), folded with β
+    // at once: the mesher asks for ~300k queries, and a query at a time ran on one core.
     let inv_s = kernel::inv_scales(log_s);
     let mut out = Vec::with_capacity(queries.len() / d);
     for block in queries.chunks(PREDICT_BLOCK * d) {
-        let k = kernel::cross(block, z, &inv_s);
+        let k = kernel::cross_expanded(block, z, &inv_s);
         out.extend(k.chunks_exact(m).map(|row| dot(row, beta)));
     }
     Ok(out)
