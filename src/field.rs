@@ -13,7 +13,7 @@ use std::cell::RefCell;
 use crate::gpu::{Gpu, GpuError};
 use crate::krr::{self, KrrError, LengthScaleInit, TuneSettings};
 use crate::net::{GpuNet, GpuPlanes};
-use crate::settings::{Method, SelectBy, Settings};
+use crate::settings::{Method, PriorMean, SelectBy, Settings};
 
 /// Octaves of the coordinate encoding used by the "w/o features" ablation: x, and
 /// sin/cos(2^k π x) for k < FOURIER_OCTAVES, per axis (3 + 6·5 = 33 dimensions).
@@ -53,22 +53,29 @@ pub struct KrrField {
     beta: Vec<f64>,
     /// Fourier-encoded coordinates instead of the network's features (the ablation).
     euclidean: bool,
+    /// g regressed the residual of the network's logit: the field is l(q) + g(q).
+    network_mean: bool,
     /// The GPU predictor when the regression was tuned on the GPU; else the f64 reference.
     gpu: Option<krr::GpuPredictor>,
 }
 
 impl KrrField {
-    /// g at `points`, whose network features are `features`.
-    pub async fn predict(&self, points: &[[f32; 3]], features: Vec<f32>) -> Result<Vec<f32>, String> {
+    /// The field at `points`, whose network features and logits are `features` and `logits`:
+    /// g, or l + g when g regressed the logit's residual.
+    pub async fn predict(&self, points: &[[f32; 3]], features: Vec<f32>, logits: &[f32]) -> Result<Vec<f32>, String> {
         let x = if self.euclidean { fourier_encode(points) } else { features };
         let (beta, z, log_s) = (&self.beta, &self.params.z, &self.params.log_s);
-        match &self.gpu {
-            Some(p) => p.predict(beta, z, log_s, &x).await.map_err(|e| e.to_string()),
+        let mut g = match &self.gpu {
+            Some(p) => p.predict(beta, z, log_s, &x).await.map_err(|e| e.to_string())?,
             None => {
                 let x: Vec<f64> = x.iter().map(|&v| v as f64).collect();
-                krr::predict(beta, z, log_s, &x).map(|g| g.into_iter().map(|v| v as f32).collect()).map_err(|e| e.to_string())
+                krr::predict(beta, z, log_s, &x).map(|g| g.into_iter().map(|v| v as f32).collect()).map_err(|e| e.to_string())?
             }
+        };
+        if self.network_mean {
+            g.iter_mut().zip(logits).for_each(|(g, l)| *g += l);
         }
+        Ok(g)
     }
 }
 
@@ -85,7 +92,7 @@ impl Field {
         let (features, logits) = net.decode(planes, points).await.map_err(|e| e.to_string())?;
         match self {
             Field::Network => Ok(logits),
-            Field::Krr(fit) => fit.predict(points, features).await,
+            Field::Krr(fit) => fit.predict(points, features, &logits).await,
         }
     }
 }
@@ -154,7 +161,9 @@ pub struct TrainingPairs {
 
 /// X = F([P, P~]), y = [0, l(P~)] (paper eq. 6): the input points lie on the surface (logit 0),
 /// the extra points take the network's logit as a pseudo-label, clipped to
-/// [`Settings::label_clip`].
+/// [`Settings::label_clip`]. With [`PriorMean::Network`] the targets are these minus the
+/// network's logit at each pair (−l(P) at the input points; at the extra points only what the
+/// clipping took off), so that g corrects the network and is 0 where the data says nothing.
 pub async fn training_pairs(
     net: &GpuNet,
     planes: &GpuPlanes,
@@ -166,11 +175,27 @@ pub async fn training_pairs(
     all.extend_from_slice(&extra);
     let (features, logits) = net.decode(planes, &all).await?;
     let clip = settings.label_clip.unwrap_or(f32::INFINITY);
-    let y: Vec<f32> =
-        logits.iter().enumerate().map(|(i, &l)| if i < points.len() { 0.0 } else { l.clamp(-clip, clip) }).collect();
+    let y = targets(&logits, points.len(), clip, settings.prior_mean);
     let x = if settings.euclidean { fourier_encode(&all) } else { features };
     let problem = krr::Problem::from_f32(&x, &y, input_dim(settings, net.config().c_dim))?;
     Ok(TrainingPairs { problem, inputs: points.len() })
+}
+
+/// The regression's targets for pairs whose network logits are `logits`, the first `inputs` of
+/// them input points: 0 there and the logit clipped to ±`clip` elsewhere, minus the logit itself
+/// when the network is the prior mean.
+pub fn targets(logits: &[f32], inputs: usize, clip: f32, mean: PriorMean) -> Vec<f32> {
+    logits
+        .iter()
+        .enumerate()
+        .map(|(i, &l)| {
+            let target = if i < inputs { 0.0 } else { l.clamp(-clip, clip) };
+            match mean {
+                PriorMean::Network => target - l,
+                PriorMean::Zero => target,
+            }
+        })
+        .collect()
 }
 
 /// Most pairs held out to score the tuning's iterates (see [`split_rows`]): enough that the
@@ -334,13 +359,45 @@ pub async fn fit(
         evaluations,
         phases,
     };
-    let field = KrrField { beta, params: result.params, euclidean: settings.euclidean, gpu: predictor };
+    let field = KrrField {
+        beta,
+        params: result.params,
+        euclidean: settings.euclidean,
+        network_mean: settings.prior_mean == PriorMean::Network,
+        gpu: predictor,
+    };
     Ok((field, summary))
 }
 
 #[cfg(test)]
 mod tests {
-    use super::split_rows;
+    use super::{split_rows, targets, KrrField};
+    use crate::settings::PriorMean;
+
+    #[test]
+    fn targets_with_and_without_the_network_as_prior_mean() {
+        // Two input points, then three extra points (one beyond the clip).
+        let logits = [0.5, -0.25, 2.0, -7.0, 1.0];
+        assert_eq!(targets(&logits, 2, 4.0, PriorMean::Zero), vec![0.0, 0.0, 2.0, -4.0, 1.0]);
+        // The residual: −l at the input points, only what the clipping took off elsewhere.
+        assert_eq!(targets(&logits, 2, 4.0, PriorMean::Network), vec![-0.5, 0.25, 0.0, 3.0, 0.0]);
+        assert_eq!(targets(&logits, 2, f32::INFINITY, PriorMean::Network), vec![-0.5, 0.25, 0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn the_field_adds_the_logit_when_the_network_is_the_mean() {
+        let params = crate::krr::Params { log_s: vec![0.0, 0.0], z: vec![0.0, 0.0, 1.0, 0.5] };
+        let field = |network_mean| KrrField { params: params.clone(), beta: vec![0.7, -0.3], euclidean: false, network_mean, gpu: None };
+        let points = [[0.0f32; 3]; 3];
+        let features = vec![0.0f32, 0.0, 1.0, 0.5, 0.2, -0.4];
+        let logits = [1.5f32, -2.0, 0.25];
+        let g = pollster::block_on(field(false).predict(&points, features.clone(), &logits)).unwrap();
+        let lg = pollster::block_on(field(true).predict(&points, features, &logits)).unwrap();
+        for i in 0..3 {
+            assert_eq!(lg[i], g[i] + logits[i]);
+        }
+        assert!((g[0] - (0.7 - 0.3 * (-0.5f32 * 1.25).exp())).abs() < 1e-6, "g at the first centre: {}", g[0]);
+    }
 
     #[test]
     fn tuning_rows_keep_each_kind_in_proportion() {

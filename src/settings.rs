@@ -47,6 +47,17 @@ impl KrrBackend {
     }
 }
 
+/// What the kernel regression adds to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PriorMean {
+    /// The field is l(q) + g(q), g fitted to the residual of the network's logit: where the data
+    /// says nothing, the field is the network's.
+    Network,
+    /// The field is g(q) alone, which decays to 0, the surface level, away from the inducing
+    /// points (the paper).
+    Zero,
+}
+
 /// Which of the tuning's iterates is kept.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SelectBy {
@@ -69,6 +80,7 @@ pub struct Settings {
     pub lr: f64,
     pub tune_pairs: Option<usize>,
     pub select_by: SelectBy,
+    pub prior_mean: PriorMean,
     pub lambda: f64,
     pub tune_theta: bool,
     pub tune_z: bool,
@@ -96,6 +108,7 @@ impl Default for Settings {
             lr: 0.0,
             tune_pairs: None,
             select_by: SelectBy::Training,
+            prior_mean: PriorMean::Zero,
             lambda: 0.0,
             tune_theta: false,
             tune_z: false,
@@ -305,6 +318,22 @@ pub static TABLE: &[Setting] = &[
             SelectBy::Training => "training",
         }),
         set: |s, v| s.select_by = if choice(v) == "training" { SelectBy::Training } else { SelectBy::HeldOut },
+        ..BASE
+    },
+    Setting {
+        key: "priorMean",
+        flag: "--prior-mean",
+        label: "Regression adds to",
+        help: "zero: the field is the regression alone (the paper); network: the regression fits the residual of the network's logit, so the field is the network's where the data says nothing",
+        kind: Kind::Choice(&[("zero", "nothing (paper)"), ("network", "the network's logit")]),
+        default: Value::Choice("zero"),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Choice(match s.prior_mean {
+            PriorMean::Network => "network",
+            PriorMean::Zero => "zero",
+        }),
+        set: |s, v| s.prior_mean = if choice(v) == "network" { PriorMean::Network } else { PriorMean::Zero },
         ..BASE
     },
     Setting {
