@@ -161,9 +161,9 @@ pub struct TrainingPairs {
 
 /// X = F([P, P~]), y = [0, l(P~)] (paper eq. 6): the input points lie on the surface (logit 0),
 /// the extra points take the network's logit as a pseudo-label, clipped to
-/// [`Settings::label_clip`]. With [`PriorMean::Network`] the targets are these minus the
-/// network's logit at each pair (−l(P) at the input points; at the extra points only what the
-/// clipping took off), so that g corrects the network and is 0 where the data says nothing.
+/// [`Settings::label_clip`]. With [`PriorMean::Network`] the targets are the residual of the
+/// network's logit (see [`targets`]), so that g corrects the network and is 0 where the data
+/// says nothing.
 pub async fn training_pairs(
     net: &GpuNet,
     planes: &GpuPlanes,
@@ -182,18 +182,21 @@ pub async fn training_pairs(
 }
 
 /// The regression's targets for pairs whose network logits are `logits`, the first `inputs` of
-/// them input points: 0 there and the logit clipped to ±`clip` elsewhere, minus the logit itself
-/// when the network is the prior mean.
+/// them input points: 0 there and the logit clipped to ±`clip` elsewhere; when the network is
+/// the prior mean, the residual: −l at the input points and 0 at the extra points.
+///
+/// The residual ignores the clip: what the clipping takes off a logit of −30 is a residual of
+/// +26, which g then fits far from the surface, undoing the network where it is surest and
+/// raising stray surface (measured on cow-10k: CD1 ×100 5.5 against 0.34 without).
 pub fn targets(logits: &[f32], inputs: usize, clip: f32, mean: PriorMean) -> Vec<f32> {
     logits
         .iter()
         .enumerate()
-        .map(|(i, &l)| {
-            let target = if i < inputs { 0.0 } else { l.clamp(-clip, clip) };
-            match mean {
-                PriorMean::Network => target - l,
-                PriorMean::Zero => target,
-            }
+        .map(|(i, &l)| match (mean, i < inputs) {
+            (PriorMean::Zero, true) => 0.0,
+            (PriorMean::Zero, false) => l.clamp(-clip, clip),
+            (PriorMean::Network, true) => -l,
+            (PriorMean::Network, false) => 0.0,
         })
         .collect()
 }
@@ -379,8 +382,8 @@ mod tests {
         // Two input points, then three extra points (one beyond the clip).
         let logits = [0.5, -0.25, 2.0, -7.0, 1.0];
         assert_eq!(targets(&logits, 2, 4.0, PriorMean::Zero), vec![0.0, 0.0, 2.0, -4.0, 1.0]);
-        // The residual: −l at the input points, only what the clipping took off elsewhere.
-        assert_eq!(targets(&logits, 2, 4.0, PriorMean::Network), vec![-0.5, 0.25, 0.0, 3.0, 0.0]);
+        // The residual: −l at the input points, 0 at the extra points, whatever the clip.
+        assert_eq!(targets(&logits, 2, 4.0, PriorMean::Network), vec![-0.5, 0.25, 0.0, 0.0, 0.0]);
         assert_eq!(targets(&logits, 2, f32::INFINITY, PriorMean::Network), vec![-0.5, 0.25, 0.0, 0.0, 0.0]);
     }
 

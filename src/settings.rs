@@ -324,7 +324,7 @@ pub static TABLE: &[Setting] = &[
         key: "priorMean",
         flag: "--prior-mean",
         label: "Regression adds to",
-        help: "zero: the field is the regression alone (the paper); network: the regression fits the residual of the network's logit, so the field is the network's where the data says nothing",
+        help: "zero: the field is the regression alone (the paper); network: the regression fits the residual of the network's logit (the label clip does not apply), so the field is the network's where the data says nothing",
         kind: Kind::Choice(&[("zero", "nothing (paper)"), ("network", "the network's logit")]),
         default: Value::Choice("zero"),
         nkrr_only: true,
