@@ -9,7 +9,7 @@ already there, so a second run only redoes the report; --fresh redoes everything
 PHASE one phase. Phases: main, spsr, rerun, scaling, ablations, render, bench; then the report.
 
     .venv-peers/bin/python scripts/results.py [--work target/results] [--fresh] [--redo PHASE]
-        [--ablation-shapes A,B,...] [--scale-nkrr-max 10000]
+        [--ablation-shapes A,B,...] [--scale-nkrr-max 1000000]
 """
 import argparse
 import datetime
@@ -572,7 +572,7 @@ def main():
     ap.add_argument("--fresh", action="store_true")
     ap.add_argument("--redo", default="")
     ap.add_argument("--ablation-shapes", default="cow,fandisk,spot,stanford-bunny,suzanne,teapot")
-    ap.add_argument("--scale-nkrr-max", type=int, default=10000,
+    ap.add_argument("--scale-nkrr-max", type=int, default=1000000,
                     help="largest scaling cloud nkrr (defaults) runs on; the network runs on all")
     ap.add_argument("--render-shapes", default="stanford-bunny,fandisk")
     ap.add_argument("--phases", default="main,spsr,rerun,scaling,ablations,render,bench,report",

@@ -249,6 +249,8 @@ fn two_spheres_small_component_removed() {
     let all = run(&both, &o);
     assert!(all.mesh.is_watertight());
     assert_eq!(triangle_components(&all.mesh).1.len(), 2);
+    // Counted without a removal too (the page and the embed report it: was 0).
+    assert_eq!((all.stats.removal.components, all.stats.removal.components_removed), (2, 0));
     assert_eq!(euler(&all.mesh), 4);
 
     o.remove_small_components = Some(0.5);

@@ -51,7 +51,6 @@ export class ResultPanel {
     const t = s.tuning;
     $('r-tuning-label').hidden = $('r-tuning').hidden = !t;
     if (t) $('r-tuning').textContent = tuningSummary(t);
-    $('r-bytes').textContent = `${r.name}.glb, ${fmt.format(Math.round(s.bytes / 1024))} KiB`;
     setItems($('r-notices'), s.notices);
     $('download').textContent = `Download ${r.name}.glb`;
     r.indices = r.mesh.indices; // the triangles shown and downloaded (a subset when trimmed)
@@ -72,6 +71,18 @@ export class ResultPanel {
     $('r-triangles').textContent = removed > 0
       ? `${fmt.format(result.indices.length / 3)} (${fmt.format(removed)} trimmed; open)`
       : fmt.format(result.stats.triangles);
+    // The GLB the download will give: the reconstruction's own, or the trimmed one written now
+    // (kept for the download), so the size shown follows the trim.
+    result.trimmedGlb = null;
+    if (removed > 0) {
+      try {
+        result.trimmedGlb = this.nk.mesh_file('glb', m.positions, m.normals, m.colors, result.indices, result.name, m.translation);
+      } catch (e) {
+        this.onError(e.message ?? String(e));
+      }
+    }
+    const glbBytes = result.trimmedGlb ? result.trimmedGlb.length : result.stats.bytes;
+    $('r-bytes').textContent = `${result.name}.glb, ${fmt.format(Math.round(glbBytes / 1024))} KiB${removed > 0 ? ' (trimmed)' : ''}`;
     const closed = removed === 0 && result.stats.watertight;
     $('r-watertight').textContent = removed > 0 ? 'no (trimmed)' : closed ? 'yes' : 'no';
     $('r-watertight').className = closed ? 'yes' : 'no';
@@ -91,7 +102,9 @@ export class ResultPanel {
     let bytes = result.glb;
     let type = 'model/gltf-binary';
     const m = result.mesh;
-    if (format !== 'glb' || result.indices !== m.indices) {
+    if (format === 'glb' && result.trimmedGlb) {
+      bytes = result.trimmedGlb;
+    } else if (format !== 'glb' || result.indices !== m.indices) {
       // Written on demand from the arrays the view holds, so a trimmed mesh downloads trimmed.
       bytes = this.nk.mesh_file(format, m.positions, m.normals, m.colors, result.indices, result.name, m.translation);
       if (format !== 'glb') type = 'application/octet-stream';

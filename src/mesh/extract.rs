@@ -7,7 +7,7 @@
 
 use std::future::Future;
 
-use super::components::{remove_small_components, Removal};
+use super::components::{remove_small_components, triangle_components, Removal};
 use super::marching_cubes::polygonize;
 use super::marching_cubes_gpu::MarchingCubesGpu;
 use super::refine::{ActiveCells, ExtractError, ExtractOptions, Field, FieldError, RefineStats, Refiner};
@@ -64,11 +64,12 @@ where
     r.finish()
 }
 
-/// The steps after marching cubes: small-component removal (if asked) and vertex normals.
+/// The steps after marching cubes: small-component removal (if asked) and vertex normals. The
+/// components are counted either way (a report of 0 pieces for a mesh would be wrong).
 pub fn postprocess(mut mesh: Mesh, opts: &ExtractOptions) -> (Mesh, Removal) {
     let removal = match opts.remove_small_components {
         Some(f) => remove_small_components(&mut mesh, f),
-        None => Removal::default(),
+        None => Removal { components: triangle_components(&mesh).1.len(), ..Removal::default() },
     };
     mesh.compute_vertex_normals();
     (mesh, removal)

@@ -155,10 +155,19 @@ test('spot-3k: reconstruct in the worker, see the mesh, download a valid waterti
     // The live trim: the slider drops triangles far from the points without a re-run, and the
     // downloads follow it (OBJ and STL here, written on the page).
     const total = glb.indices.data.length / 3;
+    const kib = async () => Number((await page.textContent('#r-bytes')).match(/([\d,]+) KiB/)[1].replace(/,/g, ''));
+    const fullKib = await kib();
     await page.evaluate(() => { const t = document.getElementById('live-trim'); t.value = '2'; t.dispatchEvent(new Event('input')); });
     const trimmed = Number(await page.evaluate(() => document.body.dataset.trimmed));
     assert.ok(trimmed > 0 && trimmed < total / 2, `trimmed ${trimmed} of ${total}`);
     assert.match(await page.textContent('#r-triangles'), /trimmed; open/);
+    // The size shown follows the trim and is the trimmed GLB's that the download gives.
+    const trimmedKib = await kib();
+    assert.ok(trimmedKib < fullKib, `GLB size shown after the trim: ${trimmedKib} KiB, before ${fullKib} KiB`);
+    const [glbDl] = await Promise.all([page.waitForEvent('download'), page.click('#download')]);
+    const trimmedGlb = fs.readFileSync(await glbDl.path());
+    assert.equal(Math.round(trimmedGlb.length / 1024), trimmedKib);
+    assert.equal(readGlb(trimmedGlb).indices.data.length / 3, total - trimmed);
     const [objDl] = await Promise.all([page.waitForEvent('download'), page.click('#download-obj')]);
     assert.equal(objDl.suggestedFilename(), 'spot-3k.obj');
     const objText = fs.readFileSync(await objDl.path(), 'utf8');
