@@ -327,7 +327,10 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         }
     }
     if let Some(f) = &rec.fit {
-        tell!("fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone", f.moved, f.mean_shift, f.kept);
+        tell!(
+            "fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone; {} triangles turned over, {} after the repair",
+            f.moved, f.mean_shift, f.kept, f.flipped, f.flipped_after_repair
+        );
     }
     for n in &rec.notices {
         tell!("notice: {n}");

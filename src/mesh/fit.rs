@@ -30,6 +30,10 @@ pub struct FitReport {
     pub kept: usize,
     /// Mean distance a moved vertex travelled, in units of the cloud's mean spacing.
     pub mean_shift: f64,
+    /// Triangles the moves turned over (normal against the field's mesh), before and after the
+    /// repair (see [`fit_to_points`]).
+    pub flipped: usize,
+    pub flipped_after_repair: usize,
 }
 
 /// How the fit chooses its neighbourhoods.
@@ -97,14 +101,87 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
         }
     }
     let moves = smooth(&moves, &mesh.indices, opts.smoothing);
+    let before: Vec<[f64; 3]> = triangle_normals(&mesh.positions, &mesh.indices);
     let mut shift = 0.0f64;
     for (v, d) in mesh.positions.iter_mut().zip(&moves) {
         shift += dot(*d, *d).sqrt();
         *v = [0, 1, 2].map(|a| (v[a] as f64 + d[a]) as f32);
     }
+    (report.flipped, report.flipped_after_repair) = unflip(mesh, &before);
     report.mean_shift = if report.moved > 0 && spacing > 0.0 { shift / report.moved as f64 / spacing } else { 0.0 };
     mesh.compute_vertex_normals();
     report
+}
+
+/// Unnormalised normals (twice the area) of the triangles of `indices`.
+fn triangle_normals(positions: &[[f32; 3]], indices: &[u32]) -> Vec<[f64; 3]> {
+    indices
+        .chunks_exact(3)
+        .map(|t| {
+            let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions[i as usize].map(f64::from));
+            cross(sub(b, a), sub(c, a))
+        })
+        .collect()
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// Rounds of the repair of turned-over triangles.
+const UNFLIP_ROUNDS: usize = 8;
+
+/// Marching cubes' slivers can turn over when their vertices move onto slightly different
+/// planes: a triangle whose normal now points against its normal `before` the fit shows as a
+/// dark speck and breaks the surface's orientation. Each round moves the vertices of such
+/// triangles to the mean of their mesh neighbours (one umbrella step, on those vertices only),
+/// which unfolds a sliver without pulling the rest of the surface off its points. Returns the
+/// turned-over triangles before and after the repair.
+fn unflip(mesh: &mut Mesh, before: &[[f64; 3]]) -> (usize, usize) {
+    let flipped = |mesh: &Mesh| -> Vec<usize> {
+        triangle_normals(&mesh.positions, &mesh.indices)
+            .iter()
+            .zip(before)
+            .enumerate()
+            .filter(|(_, (now, was))| dot(**was, **was) > 0.0 && dot(**now, **was) <= 0.0)
+            .map(|(t, _)| t)
+            .collect()
+    };
+    let mut bad = flipped(mesh);
+    let first = bad.len();
+    let n = mesh.positions.len();
+    for _ in 0..UNFLIP_ROUNDS {
+        if bad.is_empty() {
+            break;
+        }
+        let mut marked = vec![false; n];
+        for &t in &bad {
+            for &i in &mesh.indices[3 * t..3 * t + 3] {
+                marked[i as usize] = true;
+            }
+        }
+        let mut sum = vec![[0.0f64; 3]; n];
+        let mut count = vec![0u32; n];
+        for t in mesh.indices.chunks_exact(3) {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0]), (t[1], t[0]), (t[2], t[1]), (t[0], t[2])] {
+                let (a, b) = (a as usize, b as usize);
+                if marked[a] {
+                    let p = mesh.positions[b];
+                    for k in 0..3 {
+                        sum[a][k] += p[k] as f64;
+                    }
+                    count[a] += 1;
+                }
+            }
+        }
+        for i in 0..n {
+            if marked[i] && count[i] > 0 {
+                mesh.positions[i] = sum[i].map(|x| (x / count[i] as f64) as f32);
+            }
+        }
+        bad = flipped(mesh);
+    }
+    (first, bad.len())
 }
 
 /// Planes more than about 75° from the mesh's own normal are not used (see the module docs).
@@ -208,6 +285,39 @@ fn smallest_eigenvector(a: [[f64; 3]; 3]) -> Option<[f64; 3]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 5 × 5 vertex grid in the plane z = 0, two triangles a cell, all facing +z.
+    fn grid() -> Mesh {
+        let positions: Vec<[f32; 3]> = (0..25).map(|i| [(i % 5) as f32, (i / 5) as f32, 0.0]).collect();
+        let mut indices = Vec::new();
+        for y in 0..4u32 {
+            for x in 0..4u32 {
+                let v = y * 5 + x;
+                indices.extend_from_slice(&[v, v + 1, v + 6, v, v + 6, v + 5]);
+            }
+        }
+        Mesh { normals: vec![[0.0, 0.0, 1.0]; 25], positions, colors: None, indices }
+    }
+
+    #[test]
+    fn turned_over_triangles_are_unfolded() {
+        let mut mesh = grid();
+        let before = triangle_normals(&mesh.positions, &mesh.indices);
+        // The centre vertex pushed across two of its neighbours turns triangles over.
+        mesh.positions[12] = [3.6, 2.4, 0.0];
+        let now = triangle_normals(&mesh.positions, &mesh.indices);
+        let turned = now.iter().zip(&before).filter(|(a, b)| dot(**a, **b) <= 0.0).count();
+        assert!(turned >= 2, "the set-up should turn triangles over: {turned}");
+        let (first, after) = unflip(&mut mesh, &before);
+        assert_eq!((first, after), (turned, 0));
+        // Only the vertices of turned-over triangles moved; the border stayed.
+        assert_eq!(mesh.positions[0], [0.0, 0.0, 0.0]);
+        assert_eq!(mesh.positions[24], [4.0, 4.0, 0.0]);
+        // Nothing to repair: nothing moves.
+        let mut flat = grid();
+        assert_eq!(unflip(&mut flat, &before), (0, 0));
+        assert_eq!(flat.positions, grid().positions);
+    }
 
     #[test]
     fn the_normal_is_the_eigenvector_of_the_smallest_eigenvalue() {
