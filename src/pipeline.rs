@@ -16,6 +16,9 @@ use crate::net::{GpuNet, NetError, Weights};
 use crate::plan::{DeviceFacts, MemoryPlan};
 use crate::settings::{Method, Settings};
 
+/// Field evaluations between two meshing progress reports.
+const MESHING_PROGRESS_CHUNK: usize = 32_768;
+
 /// A stage of the pipeline, as reported to the progress callback.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Stage {
@@ -183,15 +186,21 @@ impl Engine {
         let cancelled = RefCell::new(false);
         let progress = RefCell::new(progress);
         let (net, planes, field) = (&self.net, &planes, &field);
+        // A refinement batch can hold a third of all evaluations: evaluated in chunks, with the
+        // progress told after each, the bar moves with the work done instead of jumping ahead of it.
         let eval = |pts: Vec<[f32; 3]>| {
             let (evaluated, cancelled, progress) = (&evaluated, &cancelled, &progress);
             async move {
-                *evaluated.borrow_mut() += pts.len();
-                if !(progress.borrow_mut())(&Stage::Meshing { evaluated: *evaluated.borrow() }) {
-                    *cancelled.borrow_mut() = true;
-                    return Err(FieldError("cancelled".into()));
+                let mut values = Vec::with_capacity(pts.len());
+                for chunk in pts.chunks(MESHING_PROGRESS_CHUNK) {
+                    if !(progress.borrow_mut())(&Stage::Meshing { evaluated: *evaluated.borrow() }) {
+                        *cancelled.borrow_mut() = true;
+                        return Err(FieldError("cancelled".into()));
+                    }
+                    values.extend(field.evaluate(net, planes, chunk).await.map_err(FieldError)?);
+                    *evaluated.borrow_mut() += chunk.len();
                 }
-                field.evaluate(net, planes, &pts).await.map_err(FieldError)
+                Ok(values)
             }
         };
         let extraction = extract_gpu_async(&self.gpu, eval, &opts).await;

@@ -452,3 +452,27 @@ fn the_fit_to_the_points_brings_the_mesh_to_the_surface() {
     assert!(f.fscore > p.fscore + 0.03, "F fitted {} vs plain {}", f.fscore, p.fscore);
     assert!(f.nc >= p.nc - 0.002, "NC fitted {} vs plain {}", f.nc, p.nc);
 }
+
+/// Meshing progress moves with the work done (issue 17): the evaluations reported never run
+/// ahead of the evaluations made, grow in steps of at most one chunk (32768), and end at the
+/// extraction's own count.
+#[test]
+fn meshing_progress_follows_the_evaluations() {
+    let cloud = spot();
+    let gpu = nkrr::gpu::Gpu::new_blocking().expect("a wgpu adapter (lavapipe will do)");
+    let engine = pollster::block_on(Engine::new(gpu)).unwrap();
+    let mut seen = Vec::new();
+    let s = Settings { resolution: 96, ..settings() };
+    let rec = pollster::block_on(engine.reconstruct(&cloud, &s, &mut |stage| {
+        if let nkrr::pipeline::Stage::Meshing { evaluated } = stage {
+            seen.push(*evaluated);
+        }
+        true
+    }))
+    .unwrap();
+    let total = rec.extract.refine.evaluations as usize;
+    assert!(seen.windows(2).all(|w| w[0] <= w[1] && w[1] - w[0] <= 32_768), "progress steps: {seen:?}");
+    assert!(seen.len() >= total / 32_768, "{} reports for {total} evaluations", seen.len());
+    assert!(*seen.last().unwrap() < total, "the last report comes before the last chunk is evaluated");
+    assert!(total - seen.last().unwrap() <= 32_768);
+}
