@@ -53,7 +53,7 @@ export class Settings {
     this.container = container;
     /** What the share link's settings had wrong (each was not used). */
     this.problems = [];
-    /** True when WebGPU runs on a software adapter: picking nkrr then shows #nkrr-note. */
+    /** True when WebGPU runs on a software adapter: #nkrr-note then says why the network is the default. */
     this.softwareAdapter = false;
     this._build();
     container.addEventListener('change', (e) => { if (e.target.name === 'method') this.sync(); });
@@ -266,11 +266,12 @@ export class Settings {
     return this.problems;
   }
 
-  /** Enables the nkrr-only fields when the method is nkrr; shows #nkrr-note on a software adapter. */
+  /** Enables the nkrr-only fields when the method is nkrr; shows #nkrr-note on a software adapter
+   *  from the start, so that why the network is the default is said before anyone picks NKRR. */
   sync() {
     const nkrr = this.nkrr;
     for (const fs of this.container.querySelectorAll('fieldset.nkrr-only')) fs.disabled = !nkrr;
     const note = document.getElementById('nkrr-note');
-    if (note) note.hidden = !(nkrr && this.softwareAdapter);
+    if (note) note.hidden = !this.softwareAdapter;
   }
 }
