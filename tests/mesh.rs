@@ -443,7 +443,10 @@ fn active_cells_from_a_dense_array_match_the_search() {
 fn plan_levels() {
     let p = |r, c| Plan::new(&opts(r, c)).unwrap();
     assert_eq!(p(128, 32), Plan { resolution: 128, coarse: 32, levels: 2 });
-    assert_eq!(p(100, 32), Plan { resolution: 100, coarse: 50, levels: 1 });
+    assert_eq!(p(100, 32), Plan { resolution: 100, coarse: 25, levels: 2 });
+    // 96 from a 24³ grid, not a dense 48³ one (96³ meshing was slower than 128³).
+    assert_eq!(p(96, 32), Plan { resolution: 96, coarse: 24, levels: 2 });
+    assert_eq!(p(192, 32), Plan { resolution: 192, coarse: 24, levels: 3 });
     assert_eq!(p(96, 20), Plan { resolution: 96, coarse: 24, levels: 2 });
     assert_eq!(p(64, 64), Plan { resolution: 64, coarse: 64, levels: 0 });
     assert_eq!(p(64, 100), Plan { resolution: 64, coarse: 64, levels: 0 });

@@ -6,7 +6,7 @@
 //! coordinates `0..=resolution` per axis. The search:
 //!
 //! 1. evaluates every corner of the coarse grid (`coarse'³` cells, where `coarse'` is
-//!    `resolution / 2^levels`, the smallest such value `>= coarse`, see [`Plan`]);
+//!    `resolution / 2^levels`, the smallest such value `>= ¾ coarse`, see [`Plan`]);
 //! 2. marks the cells whose corners do not all have the same side (INSIDE: value `> 0`), plus
 //!    every cell touching one of them (a one-cell dilation, so that a feature that slips between
 //!    the corners of one level is still refined when it shows at the next);
@@ -182,7 +182,8 @@ pub struct Plan {
     /// Cells per axis of the finest grid (`ExtractOptions::resolution`).
     pub resolution: u32,
     /// Cells per axis of the coarsest grid: `resolution` halved while it stays even and the
-    /// half is still `>= ExtractOptions::coarse` (so 128 / 32 → 32, 100 / 32 → 50, 96 / 20 → 24).
+    /// half is still at least ¾ of `ExtractOptions::coarse` (so 128 / 32 → 32, 96 / 32 → 24,
+    /// 100 / 32 → 25, 96 / 20 → 24).
     pub coarse: u32,
     /// Number of refinements: `resolution = coarse << levels`.
     pub levels: u32,
@@ -210,7 +211,10 @@ impl Plan {
         }
         let mut coarse = opts.resolution;
         let mut levels = 0;
-        while coarse.is_multiple_of(2) && coarse / 2 >= opts.coarse {
+        // Halved while the half is at least ¾ of `coarse`: 96 stops at 24, not at 48, whose
+        // dense 49³ corners cost more than all of 128's refinement from 32 (96³ was slower than
+        // 128³).
+        while coarse.is_multiple_of(2) && 4 * (coarse / 2) >= 3 * opts.coarse {
             coarse /= 2;
             levels += 1;
         }
