@@ -40,6 +40,8 @@ pub enum PipelineError {
     Net(NetError),
     Mesh(ExtractError),
     Krr(KrrError),
+    /// The field has no inside anywhere in the domain: there is no surface to mesh.
+    NoSurface { evaluations: u64, field_max: f32, method: Method },
     Cancelled,
 }
 
@@ -51,6 +53,20 @@ impl fmt::Display for PipelineError {
             PipelineError::Net(e) => write!(f, "the network prior could not be loaded: {e}"),
             PipelineError::Mesh(e) => write!(f, "mesh extraction failed: {e}"),
             PipelineError::Krr(e) => write!(f, "the kernel regression failed: {e}"),
+            PipelineError::NoSurface { evaluations, field_max, method } => write!(
+                f,
+                "no surface found: the field ({}) is at or below 0, outside, at all {evaluations} points evaluated \
+                 (largest value {field_max:.3}), so nothing is inside anywhere. The prior sees the cloud as no \
+                 closed object: a flat patch, a sparse or scattered cloud, or a scene larger than one object{}",
+                match method {
+                    Method::Nkrr => "NKRR",
+                    Method::Network => "the network",
+                },
+                match method {
+                    Method::Nkrr => "; the network alone (--method network) may still find one",
+                    Method::Network => "",
+                }
+            ),
             PipelineError::Cancelled => write!(f, "cancelled"),
         }
     }
@@ -209,6 +225,10 @@ impl Engine {
         }
         let extraction = extraction.map_err(PipelineError::Mesh)?;
         timings.push(("mesh", now() - t));
+        if extraction.mesh.indices.is_empty() {
+            let r = &extraction.stats.refine;
+            return Err(PipelineError::NoSurface { evaluations: r.evaluations, field_max: r.field_max, method: settings.method });
+        }
 
         let mut mesh = extraction.mesh;
         // Fitted and trimmed in the unit cube, against the points the network saw.

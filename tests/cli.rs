@@ -236,3 +236,23 @@ fn no_graphics_stack_noise_without_xdg_runtime_dir() {
     assert!(out.status.success(), "{err}");
     assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
 }
+
+/// A cloud the prior sees no closed object in (two tight clusters far apart): the run fails
+/// with why, not with "cannot write an empty mesh" (issue 16), and writes nothing.
+#[test]
+fn no_surface_says_why() {
+    let mut text = String::new();
+    let mut rng = nkrr::rng::SplitMix64(7);
+    for i in 0..1000 {
+        let c = if i % 2 == 0 { 0.0 } else { 10.0 };
+        text.push_str(&format!("{} {} {}\n", c + 0.01 * rng.normal(), c + 0.01 * rng.normal(), c + 0.01 * rng.normal()));
+    }
+    let cloud = temp_file("two-clusters.xyz", text.as_bytes());
+    let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("cli").join("two-clusters.glb");
+    let _ = std::fs::remove_file(&out);
+    let (code, _, err) = nkrr(&["reconstruct", &cloud, "-o", out.to_str().unwrap(), "--method", "network"]);
+    assert_ne!(code, 0);
+    assert!(err.contains("no surface found") && err.contains("nothing is inside anywhere"), "{err}");
+    assert!(!err.contains("empty mesh"), "{err}");
+    assert!(!out.exists(), "nothing is written");
+}

@@ -23,7 +23,7 @@ pub struct Extraction {
     pub stats: ExtractStats,
 }
 
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct ExtractStats {
     pub refine: RefineStats,
     /// Triangles marching cubes made (before small components were removed).

@@ -281,7 +281,7 @@ impl ActiveCells {
 }
 
 /// What the search did.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct RefineStats {
     pub plan_coarse: u32,
     pub levels: u32,
@@ -299,6 +299,9 @@ pub struct RefineStats {
     pub closure_cells: usize,
     /// Rounds of the closing step that needed evaluations.
     pub closure_rounds: u32,
+    /// The largest raw field value met (NaN read as 0), before the boundary clamp: at or below 0
+    /// everywhere means no inside anywhere, hence no surface.
+    pub field_max: f32,
 }
 
 /// Value at a finest-grid corner as marching cubes sees it: finite, and `<= 0` on the boundary.
@@ -412,6 +415,7 @@ impl Refiner {
                 plan_coarse: plan.coarse,
                 levels: plan.levels,
                 dense_evaluations: (r + 1).pow(3),
+                field_max: f32::NEG_INFINITY,
                 ..Default::default()
             },
         };
@@ -458,6 +462,9 @@ impl Refiner {
         self.pending_points.clear();
         let coarse = matches!(self.stage, Stage::Level { level: 0, .. });
         for (i, (&k, &v)) in keys.iter().zip(values).enumerate() {
+            if !v.is_nan() {
+                self.stats.field_max = self.stats.field_max.max(v);
+            }
             let at = self.unkey_corner(k);
             let v = corner_value(v, at, self.plan.resolution);
             self.known.insert(k, v);
