@@ -50,6 +50,20 @@ fn decimal_commas_are_read_when_unambiguous() {
     // A comma-separated line after semicolon lines with decimal commas: ambiguous, refused.
     let e = read_err(b"0,5;1,5;2,5\n1,5;2,5;3,5\n1,2,3\n", "mixed.csv");
     assert!(e.contains("line 3") && e.contains("decimal comma"), "{e}");
+    // The same numbers separated by spaces or tabs (were six columns, y = 1646).
+    let f = read_ok(b"-0,1646 0,3188 -0,3483\n0,25\t-1,0\t2,75\n1,0 1,5 -0,125\n", "spaces.xyz");
+    assert_eq!(f.cloud.len(), 3);
+    for (p, w) in f.cloud.positions.iter().zip(&want[..3]) {
+        for a in 0..3 {
+            assert!((p[a] as f64 - w[a]).abs() < 1e-6, "{p:?} vs {w:?}");
+        }
+    }
+    // Ordinary CSV, with or without spaces after its commas, is still CSV.
+    for csv in [&b"1,2,3\n4,5,6\n7,8,9\n"[..], b"1, 2, 3\n4, 5, 6\n7, 8, 9\n", b"1.5,2.5,3.5\n4,5,6\n7,8,9\n"] {
+        let f = read_ok(csv, "plain.csv");
+        assert!(!f.layout.contains("decimal comma"), "{}", f.layout);
+        assert_eq!(f.cloud.positions[1], [4.0, 5.0, 6.0]);
+    }
 }
 
 /// One NUL byte: the message says so, with its byte offset (it said "not a point cloud").

@@ -11,8 +11,9 @@
 //!
 //! Lines end with LF, CRLF or a lone CR (classic Mac OS exports): reading only LF made a
 //! CR-only file one long line. A decimal-comma dialect (`-0,1646;0,3188;-0,3483`, as European
-//! spreadsheets export) is read when the first data line makes it unambiguous: fields separated
-//! by `;`, each holding exactly one comma with digits on both sides. Read as ordinary CSV, such
+//! spreadsheets export, or the same separated by spaces or tabs) is read when the first data
+//! line makes it unambiguous: fields separated by `;` or whitespace, each holding exactly one
+//! comma with digits on both sides. Read as ordinary CSV, such
 //! a line is six columns with x = ±0, a cloud that is wrong without a word. Once the dialect is
 //! chosen, a line that does not fit it (a field with two commas, or a comma not between digits)
 //! is refused with its line number rather than guessed at; so is a first data line with both
@@ -92,12 +93,14 @@ fn is_decimal_comma_field(t: &str) -> bool {
     }
 }
 
-/// Whether `line` is unambiguously a line of decimal-comma numbers: `;` separates at least
-/// three fields, and every field has exactly one comma with digits around it.
+/// Whether `line` is unambiguously a line of decimal-comma numbers: `;` or whitespace separates
+/// at least three fields, and every field has exactly one comma with digits around it
+/// (`-0,1646;0,3188;-0,3483` or `-0,1646 0,3188 -0,3483`). Ordinary CSV never qualifies: its
+/// commas separate fields, so a whitespace-separated field of it holds either no comma, several,
+/// or one at its end (`1, 2, 3`).
 fn is_decimal_comma_line(line: &str) -> bool {
     let t = line.trim();
-    t.contains(';')
-        && dc_tokens(t).count() >= 3
+    dc_tokens(t).count() >= 3
         && dc_tokens(t).all(|f| is_decimal_comma_field(f) && f.replacen(',', ".", 1).parse::<f64>().is_ok())
 }
 
