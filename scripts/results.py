@@ -13,6 +13,7 @@ PHASE one phase. Phases: main, spsr, rerun, scaling, ablations, render, bench; t
 """
 import argparse
 import datetime
+import glob
 import json
 import os
 import platform
@@ -589,6 +590,10 @@ def main():
         for f in files.get(p, []):
             q = os.path.join(work, f)
             shutil.rmtree(q) if os.path.isdir(q) else (os.path.exists(q) and os.remove(q))
+        if p == "ablations":
+            # The per-shape runs too, or a redo would read them back unchanged.
+            for q in glob.glob(os.path.join(work, "ablations-*")):
+                os.remove(q)
         if p == "render" and os.path.exists(os.path.join(IMG, "results-render.png")):
             os.remove(os.path.join(IMG, "results-render.png"))
     phases = a.phases.split(",")

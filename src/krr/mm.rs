@@ -180,6 +180,35 @@ pub(crate) fn kmm_side(gmm: &[f64], kmm: &[f64], z: &[f64], m: usize, d: usize) 
     (gz, gs)
 }
 
+/// Inputs of the m × m algebra as the objective meets them, on random data: the Gram matrix
+/// `A` of a Gaussian `K_nm` (`n` points, `m` centres, `d` features), `K_mm` of the same centres
+/// (no jitter), `b = K_nmᵀy`, the centres and the log length-scales.
+pub(crate) struct MmInputs {
+    pub a: Vec<f64>,
+    pub kmm: Vec<f64>,
+    pub b: Vec<f64>,
+    pub z: Vec<f64>,
+    /// Only the tests need them back (the benchmark times the algebra alone).
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub log_s: Vec<f64>,
+}
+
+impl MmInputs {
+    pub fn synthetic(n: usize, m: usize, d: usize, seed: u64) -> MmInputs {
+        use super::kernel;
+        let mut rng = crate::rng::SplitMix64(seed);
+        let x: Vec<f64> = (0..n * d).map(|_| rng.unit() - 0.5).collect();
+        let y: Vec<f64> = (0..n).map(|_| rng.unit() - 0.5).collect();
+        let z: Vec<f64> = (0..m * d).map(|_| rng.unit() - 0.5).collect();
+        let log_s = vec![(0.3f64 * (d as f64).sqrt()).ln(); d];
+        let knm = kernel::k_nm(&x, &z, &log_s);
+        let kmm = kernel::k_mm(&z, &log_s);
+        let a = linalg::gram(&knm, n, m);
+        let b = linalg::matvec_t(&knm, &y, n, m);
+        MmInputs { a, kmm, b, z, log_s }
+    }
+}
+
 /// Seconds of the CPU's share of one tuning step on a GPU objective with `m` inducing points
 /// and `d` features (the median of `reps` runs): the m × m algebra of the forward pass, of the
 /// gradient and the `K_mm` side, which the GPU objective runs in f64 on the CPU at every step
@@ -187,17 +216,8 @@ pub(crate) fn kmm_side(gmm: &[f64], kmm: &[f64], z: &[f64], m: usize, d: usize) 
 /// shapes (`A` the Gram matrix of a Gaussian `K_nm` with n = 2m). For `nkrr bench` and the
 /// page's `tuning_step_ms`.
 pub fn algebra_step_seconds(m: usize, d: usize, reps: usize) -> f64 {
-    use super::kernel;
     let n = 2 * m;
-    let mut rng = crate::rng::SplitMix64(m as u64);
-    let x: Vec<f64> = (0..n * d).map(|_| rng.unit() - 0.5).collect();
-    let y: Vec<f64> = (0..n).map(|_| rng.unit() - 0.5).collect();
-    let z: Vec<f64> = (0..m * d).map(|_| rng.unit() - 0.5).collect();
-    let log_s = vec![(0.3f64 * (d as f64).sqrt()).ln(); d];
-    let knm = kernel::k_nm(&x, &z, &log_s);
-    let kmm = kernel::k_mm(&z, &log_s);
-    let a = linalg::gram(&knm, n, m);
-    let b = linalg::matvec_t(&knm, &y, n, m);
+    let MmInputs { a, kmm, b, z, .. } = MmInputs::synthetic(n, m, d, m as u64);
     let ridge = super::problem::Ridge::new(1e-5, m);
     let (alpha, c) = ridge.weights(n);
     let (nf, lambda) = (n as f64, ridge.lambda);
@@ -221,23 +241,12 @@ pub fn algebra_step_seconds(m: usize, d: usize, reps: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::krr::kernel;
     use crate::krr::problem::Weighting;
-    use crate::rng::SplitMix64;
 
-    /// Random inputs of the m × m algebra as the objective meets them: a Gram matrix `A` of a
-    /// Gaussian `K_nm`, `K_j` of the same centres, `b`.
+    /// [`MmInputs::synthetic`] as a tuple `(A, K_mm, b, Z, log s)`.
     #[allow(clippy::type_complexity)]
     fn mm_inputs(n: usize, m: usize, d: usize, seed: u64) -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
-        let mut rng = SplitMix64(seed);
-        let x: Vec<f64> = (0..n * d).map(|_| rng.unit() - 0.5).collect();
-        let y: Vec<f64> = (0..n).map(|_| rng.unit() - 0.5).collect();
-        let z: Vec<f64> = (0..m * d).map(|_| rng.unit() - 0.5).collect();
-        let log_s = vec![(0.3f64 * (d as f64).sqrt()).ln(); d];
-        let knm = kernel::k_nm(&x, &z, &log_s);
-        let kmm = kernel::k_mm(&z, &log_s);
-        let a = linalg::gram(&knm, n, m);
-        let b = linalg::matvec_t(&knm, &y, n, m);
+        let MmInputs { a, kmm, b, z, log_s } = MmInputs::synthetic(n, m, d, seed);
         (a, kmm, b, z, log_s)
     }
 
