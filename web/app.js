@@ -403,8 +403,18 @@ function buildSettings() {
   settings = new Settings(nk.settings_table(), $('settings-form'));
 }
 
+/** The offline copy (web/sw.js), relative to this page so that any sub-path works; without it
+ *  (a file:// page, a browser without service workers) the app still runs, online only. */
+function keepOfflineCopy() {
+  if (!('serviceWorker' in navigator)) return;
+  navigator.serviceWorker.register('./sw.js').then(
+    () => mark('offline', 'registered'),
+    (e) => console.warn(`no offline copy: ${e.message ?? e}`));
+}
+
 async function boot() {
   wireInput();
+  keepOfflineCopy();
   if (!navigator.gpu) {
     show(NO_WEBGPU, 'error');
     mark('state', 'no-webgpu');

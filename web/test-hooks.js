@@ -14,6 +14,7 @@
 //   workers   how many workers have been started (a cancelled CPU-bound run replaces one)
 //   stopping  the id of a cancelled run its worker has not confirmed yet
 //   trimmed   triangles the result panel's live trim slider removes
+//   offline   'registered' once the service worker that keeps the offline copy is registered
 //
 // window:
 //   nkrrViewer         the Rust viewer (coverage(), saturation(), set_point_budget(), …)

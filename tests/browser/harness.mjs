@@ -16,6 +16,7 @@ export const ARTIFACTS = path.join(ROOT, 'artifacts');
 const TYPES = {
   '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/javascript', '.wasm': 'application/wasm',
   '.css': 'text/css', '.ply': 'application/octet-stream', '.glb': 'model/gltf-binary', '.json': 'application/json',
+  '.webmanifest': 'application/manifest+json', '.svg': 'image/svg+xml',
 };
 
 /** Serves `dir` on 127.0.0.1 (a free port); extra routes map URL paths to files; `headers` are
