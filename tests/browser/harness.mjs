@@ -36,8 +36,9 @@ export async function serve(dir, extra = {}, headers = {}) {
   return { server, url: `http://127.0.0.1:${server.address().port}` };
 }
 
-/** Debian's Chromium, headless; `webgpu: false` leaves WebGPU off (the negative control). */
-export async function browser({ webgpu = true } = {}) {
+/** Debian's Chromium, headless; `webgpu: false` leaves WebGPU off (the negative control);
+ *  `args`: more command-line flags (e.g. --js-flags=--expose-gc). */
+export async function browser({ webgpu = true, args: extra = [] } = {}) {
   if (!fs.existsSync('/usr/bin/chromium')) throw new Error('no /usr/bin/chromium: run scripts/setup.sh apt');
   const args = [
     '--no-sandbox', '--no-first-run', '--disable-background-networking', '--disable-component-update',
@@ -47,6 +48,7 @@ export async function browser({ webgpu = true } = {}) {
   // WebGPU canvas: without them the GPU process finds no shared-image backing for the swap
   // chain, dies, and every later buffer map fails ("no valid external Instance").
   if (webgpu) args.push('--enable-unsafe-webgpu', '--use-angle=vulkan', '--enable-features=Vulkan', '--use-vulkan=swiftshader');
+  args.push(...extra);
   return chromium.launch({ executablePath: '/usr/bin/chromium', headless: true, args });
 }
 
