@@ -17,7 +17,7 @@
 //   offline   'registered' once the service worker that keeps the offline copy is registered
 //
 // window:
-//   nkrrViewer         the Rust viewer (coverage(), saturation(), set_point_budget(), …)
+//   nkrrViewer         the Rust viewer (coverage(), saturation(), set_point_budget(), gpu_bytes(), …)
 //   nkrrReconstructor  the page's Reconstructor (web/reconstructor.js)
 //   nkrrSettings       { table(): the wasm settings_table(), readOptions({ all }), shareParams(),
 //                        problems(): what the share link's settings had wrong }

@@ -493,6 +493,20 @@ impl Viewer {
         Ok(())
     }
 
+    /// Bytes of the GPU buffers the view holds now (uniforms, the cloud's and the mesh's vertex
+    /// and index buffers): the soak test checks that it does not grow from one run to the next
+    /// (a replaced cloud or mesh frees its buffers).
+    pub fn gpu_bytes(&self) -> f64 {
+        let mut b = self.uniform.size() + self.mesh_uniform.size();
+        if let Some(c) = &self.cloud {
+            b += c.positions.size() + c.colors.size();
+        }
+        if let Some(m) = &self.mesh {
+            b += m.positions.size() + m.normals.size() + m.colors.size() + m.indices.size() + m.edges.size();
+        }
+        b as f64
+    }
+
     /// Test hook: renders offscreen and resolves to the fraction of pixels that differ from the
     /// background, so a browser test can tell a drawn cloud from an empty view. The borrow of
     /// the viewer ends before the promise's readback, so renders may interleave with it.

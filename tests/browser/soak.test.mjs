@@ -1,7 +1,8 @@
 // The page under a day of use (issue 16, item 4): reconstructions in a row on one page, from
 // mixed formats (PLY, LAZ, E57, text), some cancelled in the middle and one with its GPU device
 // lost mid-run. Every run must end (done, cancelled, or an error that says why), the JS heap
-// must stay flat over the second half of the runs, and the page's main thread must never be
+// must stay flat over the second half of the runs, the view's GPU buffers must be the same for
+// the same cloud on every pass, and the page's main thread must never be
 // blocked for more than 200 ms while a reconstruction runs (long tasks, measured by the
 // browser). NKRR_SOAK_RUNS sets the number of runs (20 by default; the README gives the full
 // length's figures). A cloud of 20M points is the large-file case of reconstruct.test.mjs.
@@ -66,6 +67,9 @@ test(`${RUNS} reconstructions in a row: mixed formats, cancels, a lost device; t
 
     const outcomes = [];
     const heap = [];
+    // The view's GPU buffers after each run, by cloud and outcome: the same cloud and outcome
+    // must hold the same bytes on every pass through the list (nothing kept from earlier runs).
+    const gpuBytes = new Map();
     for (let i = 0; i < RUNS; i++) {
       const cloud = clouds[i % clouds.length];
       const name = path.basename(cloud);
@@ -90,11 +94,14 @@ test(`${RUNS} reconstructions in a row: mixed formats, cancels, a lost device; t
       else if (kind === 'cancel') assert.ok(['cancelled', 'done'].includes(outcome), `run ${i + 1}: ${outcome}: ${message}`);
       else assert.ok(outcome === 'done' || (outcome === 'error' && /lost/.test(message)), `run ${i + 1}: ${outcome}: ${message}`);
       heap.push(await heapMb(page));
+      const key = `${name} ${outcome}`, bytes = await page.evaluate(() => window.nkrrViewer.gpu_bytes());
+      if (gpuBytes.has(key)) assert.equal(bytes, gpuBytes.get(key), `run ${i + 1}: the view holds ${bytes} GPU bytes for ${key}, before ${gpuBytes.get(key)}`);
+      else gpuBytes.set(key, bytes);
     }
     const soak = await page.evaluate(() => window.__soak);
     const during = soak.long.filter(([t, d]) => soak.intervals.some(([a, z]) => t + d > a && t < z));
     const worst = Math.max(0, ...during.map(([, d]) => d));
-    const result = { runs: RUNS, outcomes, heapMb: heap.map((h) => +h.toFixed(2)), longTasksDuringRuns: during.length, worstLongTaskMs: worst };
+    const result = { runs: RUNS, outcomes, heapMb: heap.map((h) => +h.toFixed(2)), viewGpuBytes: Object.fromEntries(gpuBytes), longTasksDuringRuns: during.length, worstLongTaskMs: worst };
     console.log(JSON.stringify(result));
     fs.writeFileSync(path.join(ARTIFACTS, 'soak.json'), JSON.stringify(result, null, 1));
     // Flat once warm: the heap after a collection swings by ±1 MB from run to run (what the
