@@ -58,6 +58,10 @@ fn decimal_commas_are_read_when_unambiguous() {
             assert!((p[a] as f64 - w[a]).abs() < 1e-6, "{p:?} vs {w:?}");
         }
     }
+    // Decimal commas on some numbers only, separated by spaces: refused with the reason (was
+    // read as CSV, 2,5 splitting into two columns).
+    let e = read_err(b"1 2,5 3\n0 0,5 1\n1 1 1,25\n", "mixed.xyz");
+    assert!(e.contains("line 1") && e.contains("decimal comma"), "{e}");
     // Ordinary CSV, with or without spaces after its commas, is still CSV.
     for csv in [&b"1,2,3\n4,5,6\n7,8,9\n"[..], b"1, 2, 3\n4, 5, 6\n7, 8, 9\n", b"1.5,2.5,3.5\n4,5,6\n7,8,9\n"] {
         let f = read_ok(csv, "plain.csv");

@@ -104,6 +104,18 @@ fn is_decimal_comma_line(line: &str) -> bool {
         && dc_tokens(t).all(|f| is_decimal_comma_field(f) && f.replacen(',', ".", 1).parse::<f64>().is_ok())
 }
 
+/// Whether `line` has at least three whitespace-separated fields, no `;`, and mixes fields
+/// with one decimal comma (`2,5`) with plain numbers (`1 2,5 3`): a decimal-comma line with
+/// whole numbers written bare, or spaces and commas both separating; either reading may be wrong.
+fn is_mixed_decimal_comma_line(line: &str) -> bool {
+    let t = line.trim();
+    let fields: Vec<&str> = t.split_ascii_whitespace().collect();
+    !t.contains(';')
+        && fields.len() >= 3
+        && fields.iter().any(|f| is_decimal_comma_field(f))
+        && fields.iter().all(|f| is_decimal_comma_field(f) || (!f.contains(',') && f.parse::<f64>().is_ok()))
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Role {
     X,
@@ -360,6 +372,12 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
         if columns == 0 && !decimal_comma {
             if is_decimal_comma_line(line) {
                 decimal_comma = true;
+            } else if is_mixed_decimal_comma_line(line) {
+                return Err(err(
+                    number,
+                    "some numbers have a decimal comma (2,5) and others none, separated by spaces: read as CSV the \
+                     commas would split them. Write every value with one (2,0) or use '.'; nkrr will not guess",
+                ));
             } else if line.contains(';') && line.contains(',') && matches!(classify_line(line, &mut values, false), Line::Values(_)) {
                 // Numbers separated by both ';' and ',': decimal commas on some fields only
                 // ("1,5;2;3,25") or two separators at once. Either reading may be wrong.
