@@ -316,7 +316,7 @@ pub async fn fit(
             objective = krr::GpuObjective::new(gpu, all, solve).await.map_err(KrrError::from)?;
             let (eval, _) = objective.evaluate(&result.params, false).await?;
             evaluations += objective.evaluations;
-            phases = phases.plus(&objective.total_timings);
+            phases.accumulate(&objective.total_timings);
             eval.beta
         } else {
             result.eval.beta.clone()
@@ -324,11 +324,7 @@ pub async fn fit(
         (result, Some(objective.predictor().clone()), evaluations, Some(phases), beta)
     } else {
         let mut objective = krr::Reference { problem, settings: ridge };
-        let result = if validation.is_some() {
-            krr::tune_scored(&mut objective, init, &ts, |p: &krr::Params, e: &krr::Eval| score(p, e).map(|s| s.unwrap_or(0.0)), report)?
-        } else {
-            krr::tune(&mut objective, init, &ts, report)?
-        };
+        let result = krr::tune_scored(&mut objective, init, &ts, score, report)?;
         let mut evaluations = result.history.len();
         let beta = if subset.is_some() && !matches!(result.stop, krr::StopReason::Cancelled) {
             evaluations += 1;

@@ -730,7 +730,7 @@ fn scored_tuning_keeps_the_lowest_score_and_stops_when_it_rises() {
     let mut calls = 0;
     let score = |_: &Params, _: &Eval| {
         calls += 1;
-        Ok((calls as f64 - 7.0).abs() + 1.0)
+        Ok(Some((calls as f64 - 7.0).abs() + 1.0))
     };
     let r = nkrr::krr::tune_scored(&mut Falling(0), init.clone(), &ts, score, |_, _| true).unwrap();
     assert_eq!(r.best_step, 6);

@@ -302,13 +302,8 @@ pub struct PhaseTimings {
 }
 
 impl PhaseTimings {
-    /// These timings and `o`'s, summed.
-    pub fn plus(mut self, o: &PhaseTimings) -> PhaseTimings {
-        self.accumulate(o);
-        self
-    }
-
-    fn accumulate(&mut self, o: &PhaseTimings) {
+    /// Adds `o`'s timings to these.
+    pub(crate) fn accumulate(&mut self, o: &PhaseTimings) {
         self.kernel += o.kernel;
         self.gram += o.gram;
         self.cpu_algebra += o.cpu_algebra;

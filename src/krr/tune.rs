@@ -109,24 +109,16 @@ where
     O: Objective + ?Sized,
     F: FnMut(usize, &Eval) -> bool,
 {
-    drive(objective, init, settings, None::<fn(&Params, &Eval) -> Result<f64, KrrError>>, progress)
+    tune_scored(objective, init, settings, |_, _| Ok(None), progress)
 }
 
 /// [`tune`], keeping the iterate with the lowest `score(params, eval)` (e.g. the error on
-/// held-out pairs) and stopping when it no longer improves (see the module docs).
-pub fn tune_scored<O, S, F>(objective: &mut O, init: Params, settings: &TuneSettings, score: S, progress: F) -> Result<TuneResult, KrrError>
+/// held-out pairs) and stopping when it no longer improves (see the module docs); a score of
+/// `None` selects by the training error as [`tune`] does.
+pub fn tune_scored<O, S, F>(objective: &mut O, init: Params, settings: &TuneSettings, mut score: S, mut progress: F) -> Result<TuneResult, KrrError>
 where
     O: Objective + ?Sized,
-    S: FnMut(&Params, &Eval) -> Result<f64, KrrError>,
-    F: FnMut(usize, &Eval) -> bool,
-{
-    drive(objective, init, settings, Some(score), progress)
-}
-
-fn drive<O, S, F>(objective: &mut O, init: Params, settings: &TuneSettings, mut score: Option<S>, mut progress: F) -> Result<TuneResult, KrrError>
-where
-    O: Objective + ?Sized,
-    S: FnMut(&Params, &Eval) -> Result<f64, KrrError>,
+    S: FnMut(&Params, &Eval) -> Result<Option<f64>, KrrError>,
     F: FnMut(usize, &Eval) -> bool,
 {
     let mut tuner = Tuner::new(init, settings)?;
@@ -136,10 +128,7 @@ where
         } else {
             objective.eval(params).map(|e| (e, None))
         };
-        let result = result.and_then(|(e, g)| match score.as_mut() {
-            Some(score) => score(params, &e).map(|s| (e, g, Some(s))),
-            None => Ok((e, g, None)),
-        });
+        let result = result.and_then(|(e, g)| score(params, &e).map(|s| (e, g, s)));
         tuner.supply_scored(result, &mut progress)?;
     }
     Ok(tuner.finish())
@@ -160,8 +149,7 @@ where
     tune_async_scored(scored, init, settings, progress).await
 }
 
-/// [`tune_async`] where `evaluate` also resolves to a score (see [`tune_scored`]); `None`
-/// selects by the training error as [`tune`] does.
+/// [`tune_async`] where `evaluate` also resolves to a score (see [`tune_scored`]).
 pub async fn tune_async_scored<E, Fut, F>(mut evaluate: E, init: Params, settings: &TuneSettings, mut progress: F) -> Result<TuneResult, KrrError>
 where
     E: FnMut(Params, bool) -> Fut,
@@ -192,8 +180,6 @@ pub struct Tuner {
     best: Option<(Params, Eval, usize, f64)>,
     history: Vec<StepLog>,
     best_loss: f64,
-    best_fit: f64,
-    best_score: f64,
     stale: usize,
     step: usize,
     stop: Option<StopReason>,
@@ -220,8 +206,6 @@ impl Tuner {
             best: None,
             history: Vec::new(),
             best_loss: f64::INFINITY,
-            best_fit: f64::INFINITY,
-            best_score: f64::INFINITY,
             stale: 0,
             step: 0,
             stop: None,
@@ -272,11 +256,13 @@ impl Tuner {
             }
         };
         self.history.push(StepLog { step, loss: eval.loss, data_fit: eval.data_fit, score });
+        // The selection key: the score, or the training error. The kept iterate's is the lowest
+        // seen so far, which the early stop below compares against too.
         let key = score.unwrap_or(eval.data_fit);
-        let improved_key = self.best.as_ref().is_none_or(|b| key < b.3);
-        let (loss, fit) = (eval.loss, eval.data_fit);
+        let best_key = self.best.as_ref().map_or(f64::INFINITY, |b| b.3);
+        let loss = eval.loss;
         let go_on = progress(step, &eval);
-        if improved_key {
+        if self.best.is_none() || key < best_key {
             self.best = Some((self.params.clone(), eval, step, key));
         }
         if !go_on {
@@ -288,15 +274,10 @@ impl Tuner {
             return Ok(());
         }
         let better = |v: f64, best: f64| v < best - s.rel_tol * best.abs();
-        let progressed = match score {
-            // Validated: only the score counts; the loss may fall for ever while the iterate
-            // over-fits.
-            Some(v) => better(v, self.best_score),
-            None => better(loss, self.best_loss) || better(fit, self.best_fit),
-        };
+        // Validated, only the score counts: the loss may fall for ever while the iterate
+        // over-fits. Otherwise the loss or the training error.
+        let progressed = better(key, best_key) || (score.is_none() && better(loss, self.best_loss));
         self.best_loss = self.best_loss.min(loss);
-        self.best_fit = self.best_fit.min(fit);
-        self.best_score = self.best_score.min(score.unwrap_or(f64::INFINITY));
         if step == 0 || progressed {
             self.stale = 0;
         } else {
