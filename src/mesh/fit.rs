@@ -149,7 +149,11 @@ fn unflip(mesh: &mut Mesh, before: &[[f64; 3]]) -> (usize, usize) {
     };
     let mut bad = flipped(mesh);
     let first = bad.len();
+    if bad.is_empty() {
+        return (0, 0);
+    }
     let n = mesh.positions.len();
+    let neighbours = Neighbours::of(&mesh.indices, n);
     for _ in 0..UNFLIP_ROUNDS {
         if bad.is_empty() {
             break;
@@ -160,24 +164,23 @@ fn unflip(mesh: &mut Mesh, before: &[[f64; 3]]) -> (usize, usize) {
                 marked[i as usize] = true;
             }
         }
-        let mut sum = vec![[0.0f64; 3]; n];
-        let mut count = vec![0u32; n];
-        for t in mesh.indices.chunks_exact(3) {
-            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0]), (t[1], t[0]), (t[2], t[1]), (t[0], t[2])] {
-                let (a, b) = (a as usize, b as usize);
-                if marked[a] {
-                    let p = mesh.positions[b];
-                    for k in 0..3 {
-                        sum[a][k] += p[k] as f64;
+        // Jacobi-style: every marked vertex moves to the mean of its neighbours as they were.
+        let moved: Vec<(usize, [f32; 3])> = (0..n)
+            .filter(|&i| marked[i] && neighbours.of_vertex(i).len() > 0)
+            .map(|i| {
+                let row = neighbours.of_vertex(i);
+                let len = row.len() as f64;
+                let mut sum = [0.0f64; 3];
+                for j in row {
+                    for a in 0..3 {
+                        sum[a] += mesh.positions[j][a] as f64;
                     }
-                    count[a] += 1;
                 }
-            }
-        }
-        for i in 0..n {
-            if marked[i] && count[i] > 0 {
-                mesh.positions[i] = sum[i].map(|x| (x / count[i] as f64) as f32);
-            }
+                (i, sum.map(|x| (x / len) as f32))
+            })
+            .collect();
+        for (i, p) in moved {
+            mesh.positions[i] = p;
         }
         bad = flipped(mesh);
     }
@@ -187,6 +190,45 @@ fn unflip(mesh: &mut Mesh, before: &[[f64; 3]]) -> (usize, usize) {
 /// Planes more than about 75° from the mesh's own normal are not used (see the module docs).
 const MIN_COS: f64 = 0.25;
 
+/// Each vertex's distinct neighbours along the edges of a mesh's triangles, as compressed rows:
+/// what the smoothing of the moves and the unfolding of turned-over triangles average over.
+struct Neighbours {
+    /// (vertex, neighbour), sorted: vertex `i`'s neighbours are `pairs[start[i]..start[i + 1]]`.
+    pairs: Vec<(u32, u32)>,
+    start: Vec<usize>,
+}
+
+impl Neighbours {
+    /// The neighbours of the `n` vertices of the triangles `indices` (indices out of range and
+    /// degenerate edges are ignored).
+    fn of(indices: &[u32], n: usize) -> Neighbours {
+        let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(indices.len() * 2);
+        for t in indices.chunks_exact(3) {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                if (a as usize) < n && (b as usize) < n && a != b {
+                    pairs.push((a, b));
+                    pairs.push((b, a));
+                }
+            }
+        }
+        pairs.sort_unstable();
+        pairs.dedup();
+        let mut start = vec![0usize; n + 1];
+        for &(a, _) in &pairs {
+            start[a as usize + 1] += 1;
+        }
+        for i in 0..n {
+            start[i + 1] += start[i];
+        }
+        Neighbours { pairs, start }
+    }
+
+    /// Vertex `i`'s neighbours.
+    fn of_vertex(&self, i: usize) -> impl ExactSizeIterator<Item = usize> + '_ {
+        self.pairs[self.start[i]..self.start[i + 1]].iter().map(|&(_, j)| j as usize)
+    }
+}
+
 /// `rounds` rounds of replacing each vertex's value by the mean over itself and its neighbours
 /// along the edges of `indices` (a uniform, Jacobi-style average).
 fn smooth(values: &[[f64; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> {
@@ -194,38 +236,19 @@ fn smooth(values: &[[f64; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> 
     if rounds == 0 || n == 0 {
         return values.to_vec();
     }
-    // Each vertex's distinct neighbours, as compressed rows.
-    let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(indices.len() * 2);
-    for t in indices.chunks_exact(3) {
-        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
-            if (a as usize) < n && (b as usize) < n && a != b {
-                pairs.push((a, b));
-                pairs.push((b, a));
-            }
-        }
-    }
-    pairs.sort_unstable();
-    pairs.dedup();
-    let mut start = vec![0usize; n + 1];
-    for &(a, _) in &pairs {
-        start[a as usize + 1] += 1;
-    }
-    for i in 0..n {
-        start[i + 1] += start[i];
-    }
+    let neighbours = Neighbours::of(indices, n);
     let mut cur = values.to_vec();
     let mut next = vec![[0.0f64; 3]; n];
     for _ in 0..rounds {
         for (i, out) in next.iter_mut().enumerate() {
-            let row = &pairs[start[i]..start[i + 1]];
+            let row = neighbours.of_vertex(i);
+            let w = 1.0 / (row.len() + 1) as f64;
             let mut acc = cur[i];
-            for &(_, j) in row {
-                let v = cur[j as usize];
+            for j in row {
                 for a in 0..3 {
-                    acc[a] += v[a];
+                    acc[a] += cur[j][a];
                 }
             }
-            let w = 1.0 / (row.len() + 1) as f64;
             *out = acc.map(|x| x * w);
         }
         std::mem::swap(&mut cur, &mut next);
