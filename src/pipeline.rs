@@ -203,7 +203,8 @@ impl Engine {
         let progress = RefCell::new(progress);
         let (net, planes, field) = (&self.net, &planes, &field);
         // A refinement batch can hold a third of all evaluations: evaluated in chunks, with the
-        // progress told after each, the bar moves with the work done instead of jumping ahead of it.
+        // evaluations done so far told before each, the bar moves with the work instead of
+        // jumping ahead of it.
         let eval = |pts: Vec<[f32; 3]>| {
             let (evaluated, cancelled, progress) = (&evaluated, &cancelled, &progress);
             async move {

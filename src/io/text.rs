@@ -73,13 +73,19 @@ pub fn looks_like_text(bytes: &[u8]) -> bool {
     nul * 50 <= head.len().max(50) && odd * 50 <= head.len()
 }
 
+/// The fields of a line: separated by `;`, whitespace and, unless the file writes decimal
+/// commas, `,`.
+fn fields(line: &str, decimal_comma: bool) -> impl Iterator<Item = &str> {
+    line.split(move |c: char| c == ';' || c.is_ascii_whitespace() || (c == ',' && !decimal_comma)).filter(|t| !t.is_empty())
+}
+
 fn tokens(line: &str) -> impl Iterator<Item = &str> {
-    line.split(|c: char| c == ',' || c == ';' || c.is_ascii_whitespace()).filter(|t| !t.is_empty())
+    fields(line, false)
 }
 
 /// The fields of a decimal-comma line: separated by `;` or whitespace, never by `,`.
 fn dc_tokens(line: &str) -> impl Iterator<Item = &str> {
-    line.split(|c: char| c == ';' || c.is_ascii_whitespace()).filter(|t| !t.is_empty())
+    fields(line, true)
 }
 
 /// Whether a field is a number written with a decimal comma: exactly one comma, digits on
@@ -264,37 +270,24 @@ fn classify_line<'a>(line: &'a str, values: &mut Vec<f64>, decimal_comma: bool) 
     }
     values.clear();
     let mut count = 0usize;
-    if decimal_comma {
-        for tok in dc_tokens(t) {
-            let parsed = if tok.contains(',') {
-                if !is_decimal_comma_field(tok) {
-                    return Line::BadDecimal(tok);
-                }
-                tok.replacen(',', ".", 1).parse::<f64>()
-            } else {
-                tok.parse::<f64>()
-            };
-            match parsed {
-                Ok(v) => {
-                    count += 1;
-                    if count <= MAX_COLUMNS {
-                        values.push(v);
-                    }
-                }
-                Err(_) => return Line::Words,
+    // A decimal comma is read as a point.
+    for tok in fields(t, decimal_comma) {
+        let parsed = if decimal_comma && tok.contains(',') {
+            if !is_decimal_comma_field(tok) {
+                return Line::BadDecimal(tok);
             }
-        }
-    } else {
-        for tok in tokens(t) {
-            match tok.parse::<f64>() {
-                Ok(v) => {
-                    count += 1;
-                    if count <= MAX_COLUMNS {
-                        values.push(v);
-                    }
+            tok.replacen(',', ".", 1).parse::<f64>()
+        } else {
+            tok.parse::<f64>()
+        };
+        match parsed {
+            Ok(v) => {
+                count += 1;
+                if count <= MAX_COLUMNS {
+                    values.push(v);
                 }
-                Err(_) => return Line::Words,
             }
+            Err(_) => return Line::Words,
         }
     }
     if count > MAX_COLUMNS {
