@@ -20,7 +20,7 @@ log() { printf '[setup] %s\n' "$*" >&2; }
 as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
 
 step_apt() {
-    local pkgs=(rustc-web cargo-web rust-web-src rust-web-llvm lld-22
+    local pkgs=(rustc-web cargo-web rust-web-src rust-web-llvm lld-22 clang-22 llvm-22
                 mesa-vulkan-drivers libvulkan1 chromium chromium-driver
                 libusb-1.0-0 libgomp1 python3-venv)
     local missing=()

@@ -14,3 +14,6 @@ export TRUNK_OFFLINE=true TRUNK_SKIP_VERSION_CHECK=true
 # WebAssembly SIMD (simd128: every browser with WebGPU has it), for std too (build-std): the
 # tuning's f64 m × m algebra runs on the worker's CPU at every step (tests/browser/tuning-step).
 export CARGO_TARGET_WASM32_UNKNOWN_UNKNOWN_RUSTFLAGS="-C target-feature=+simd128"
+# meshoptimizer's C++ (the meshopt crate) for wasm32: Debian's clang and llvm-ar of the same
+# LLVM as lld.
+export CC_wasm32_unknown_unknown=clang-22 CXX_wasm32_unknown_unknown=clang++-22 AR_wasm32_unknown_unknown=llvm-ar-22

@@ -145,11 +145,12 @@ impl From<KrrError> for FitError {
     }
 }
 
-/// Host bytes of [`training_pairs`] for `points` points (two pairs a point) with a network of
-/// `c_dim` features and `d` regression inputs: the extra points and their neighbour search,
-/// the decoded features and logits, and the problem in f64.
-pub fn pairs_host_bytes(points: u64, c_dim: u64, d: u64) -> u64 {
-    2 * points * (4 * c_dim + 8 * d + 20) + 40 * points
+/// Host bytes of [`training_pairs`] for `points` points with `per_point` extra points each
+/// (see [`Settings::offsets`]) and a network of `c_dim` features and `d` regression inputs: the
+/// extra points and their neighbour search, the decoded features and logits, and the problem
+/// in f64.
+pub fn pairs_host_bytes(points: u64, per_point: u64, c_dim: u64, d: u64) -> u64 {
+    (1 + per_point) * points * (4 * c_dim + 8 * d + 20) + 40 * points
 }
 
 /// The regression's training set: the problem and how many of its first rows are input points.
@@ -170,7 +171,7 @@ pub async fn training_pairs(
     points: &[[f32; 3]],
     settings: &Settings,
 ) -> Result<TrainingPairs, FitError> {
-    let extra = crate::sample::upsample(points, settings.knn_k, 2);
+    let extra = crate::sample::upsample(points, &settings.offsets(points.len()), 2);
     let mut all = points.to_vec();
     all.extend_from_slice(&extra);
     let (features, logits) = net.decode(planes, &all).await?;

@@ -102,6 +102,8 @@ pub struct Reconstruction {
     /// What trimming removed, when [`Settings::trim`] asked for it (its spacing and threshold
     /// are in the network's unit cube: times the cloud's longest side for the cloud's units).
     pub trim: Option<TrimReport>,
+    /// What the simplification did, when [`Settings::triangles`] or [`Settings::max_error`] asked for it.
+    pub simplify: Option<crate::mesh::simplify::SimplifyReport>,
     pub notices: Vec<String>,
     pub extract: ExtractStats,
     /// What the test-time tuning did (nkrr only).
@@ -249,6 +251,22 @@ impl Engine {
             ));
             r
         });
+        // After the trim, so that the simplifier keeps the trimmed border where it is; before
+        // the colours, which then go to the vertices that are left.
+        let target = crate::mesh::simplify::Target { triangles: settings.triangles, max_error: settings.max_error };
+        let simplify = (target != Default::default()).then(|| {
+            let t = now();
+            let r = crate::mesh::simplify::simplify(&mut mesh, &target);
+            timings.push(("simplify", now() - t));
+            notices.push(format!(
+                "simplified from {} to {} triangles (largest deviation {:.2} % of the object's size){}",
+                r.triangles_before,
+                r.triangles_after,
+                100.0 * r.error,
+                if r.kept_closed { "; some vertices were held in place to keep the surface closed" } else { "" }
+            ));
+            r
+        });
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }
@@ -268,6 +286,6 @@ impl Engine {
             origin = origin.map(|c| c * s);
         }
         (progress.borrow_mut())(&Stage::Done);
-        Ok(Reconstruction { mesh, origin, fit, trim, notices, extract: extraction.stats, tuning, timings })
+        Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, extract: extraction.stats, tuning, timings })
     }
 }

@@ -177,7 +177,8 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
             n = fit.max(1);
         }
     }
-    let np = 2 * n;
+    let per_point = crate::sample::Offsets::per_point_for(n as usize, settings.extra_pairs) as u64;
+    let np = (1 + per_point) * n;
     let planes = Footprint { gpu: net_gpu::planes_bytes(cfg), ..Default::default() };
     let stage = |name: &'static str, f: Footprint| StagePlan {
         name,
@@ -189,7 +190,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     let mut stages = vec![stage("load", Footprint::host(12 * nn + 12 * n))];
     stages.push(stage("features", net_gpu::encode_footprint(cfg, n)));
     if nkrr {
-        let pairs = Footprint::host(crate::field::pairs_host_bytes(n, c, d));
+        let pairs = Footprint::host(crate::field::pairs_host_bytes(n, per_point, c, d));
         stages.push(stage("pairs", planes.and(net_gpu::decode_footprint(cfg, b, np)).and(pairs)));
         let tuning = if krr_on_gpu {
             krr_gpu::objective_footprint(np, m, d, b)

@@ -51,16 +51,56 @@ pub fn kth_neighbour_distance(points: &[[f32; 3]], k: usize) -> Vec<f32> {
     out
 }
 
-/// The extra points P~: one per input point, offset by a Gaussian of that point's k-th-neighbour
-/// distance. Seeded, so a reconstruction repeats.
-pub fn upsample(points: &[[f32; 3]], k: usize, seed: u64) -> Vec<[f32; 3]> {
-    let sigma = kth_neighbour_distance(points, k);
+/// How the extra points P~ are drawn around the input points (see [`upsample`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Offsets {
+    /// Neighbour rank whose distance σ_p scales the offsets (the paper's, via Neural-Pull).
+    pub k: usize,
+    /// A second, finer rank: every other extra point is offset by this neighbour's distance
+    /// instead. `None`: one scale (the paper).
+    pub near_k: Option<usize>,
+    /// Extra points per input point (the paper: 1).
+    pub per_point: usize,
+}
+
+impl Offsets {
+    /// The paper's: one extra point per input point at the `k`-th neighbour's distance.
+    pub fn paper(k: usize) -> Offsets {
+        Offsets { k, near_k: None, per_point: 1 }
+    }
+
+    /// Extra points per input point so that `n` points get at least `least` of them, at most
+    /// [`MAX_PER_POINT`]; `None` (or a dense cloud): one.
+    pub fn per_point_for(n: usize, least: Option<usize>) -> usize {
+        least.map_or(1, |l| l.div_ceil(n.max(1)).clamp(1, MAX_PER_POINT))
+    }
+}
+
+/// The most extra points drawn around one input point: beyond it a sparse cloud's pairs
+/// repeat the same few logits at a growing cost.
+pub const MAX_PER_POINT: usize = 16;
+
+/// The extra points P~: `per_point` around each input point (all of point 0's first, then
+/// point 1's, …), each offset by a Gaussian of that point's k-th-neighbour distance, or, for
+/// every other one when `near_k` is set, of its `near_k`-th. Why two scales: on a sparse cloud
+/// the k-th neighbour is a sizeable part of the object, so the pairs land far from the surface
+/// and carry little about where it is; the near ones pin the field's slope at the surface.
+/// Seeded, so a reconstruction repeats.
+pub fn upsample(points: &[[f32; 3]], offsets: &Offsets, seed: u64) -> Vec<[f32; 3]> {
+    let far = kth_neighbour_distance(points, offsets.k);
+    let near = offsets.near_k.map(|k| kth_neighbour_distance(points, k));
     let mut rng = SplitMix64(seed);
-    points
-        .iter()
-        .zip(&sigma)
-        .map(|(p, &s)| [0, 1, 2].map(|a| p[a] + (s as f64 * rng.normal()) as f32))
-        .collect()
+    let mut out = Vec::with_capacity(points.len() * offsets.per_point);
+    for (i, p) in points.iter().enumerate() {
+        for j in 0..offsets.per_point {
+            let s = match &near {
+                Some(near) if j % 2 == 1 || (offsets.per_point == 1 && i % 2 == 1) => near[i],
+                _ => far[i],
+            };
+            out.push([0, 1, 2].map(|a| p[a] + (s as f64 * rng.normal()) as f32));
+        }
+    }
+    out
 }
 
 /// Exact k-nearest-neighbour queries against a fixed set of points (the same grid search as
@@ -286,7 +326,7 @@ mod tests {
     fn upsample_offsets_scale_with_local_spacing() {
         let pts = sphere_cloud(4000, 8);
         let sigma = kth_neighbour_distance(&pts, DEFAULT_K);
-        let extra = upsample(&pts, DEFAULT_K, 9);
+        let extra = upsample(&pts, &Offsets::paper(DEFAULT_K), 9);
         assert_eq!(extra.len(), pts.len());
         // The offsets' RMS per axis is σ: check the pooled normalised offsets have unit variance.
         let mut s2 = 0.0f64;
@@ -297,6 +337,34 @@ mod tests {
         }
         let var = s2 / (3.0 * pts.len() as f64);
         assert!((var - 1.0).abs() < 0.05, "{var}");
-        assert_eq!(upsample(&pts, DEFAULT_K, 9), extra, "seeded");
+        assert_eq!(upsample(&pts, &Offsets::paper(DEFAULT_K), 9), extra, "seeded");
+    }
+
+    #[test]
+    fn sparse_clouds_get_several_extra_points_at_two_scales() {
+        let pts = sphere_cloud(300, 3);
+        assert_eq!(Offsets::per_point_for(300, Some(4000)), 14);
+        assert_eq!(Offsets::per_point_for(300, Some(100_000)), MAX_PER_POINT);
+        assert_eq!(Offsets::per_point_for(10_000, Some(4000)), 1);
+        assert_eq!(Offsets::per_point_for(300, None), 1);
+        let offsets = Offsets { k: DEFAULT_K, near_k: Some(5), per_point: 4 };
+        let extra = upsample(&pts, &offsets, 9);
+        assert_eq!(extra.len(), 4 * pts.len());
+        let far = kth_neighbour_distance(&pts, DEFAULT_K);
+        let near = kth_neighbour_distance(&pts, 5);
+        // Each point's extras come in order: even ones at the far scale, odd ones at the near one.
+        let mut s2 = [0.0f64; 2];
+        for (j, q) in extra.iter().enumerate() {
+            let (i, scale) = (j / 4, j % 4 % 2);
+            let s = if scale == 0 { far[i] } else { near[i] };
+            s2[scale] += (0..3).map(|a| ((q[a] - pts[i][a]) as f64 / s as f64).powi(2)).sum::<f64>();
+        }
+        for v in s2 {
+            let var = v / (3.0 * 2.0 * pts.len() as f64);
+            assert!((var - 1.0).abs() < 0.1, "{var}");
+        }
+        assert!(near.iter().zip(&far).all(|(n, f)| n < f));
+        // The paper's draw is unchanged by the new options' defaults.
+        assert_eq!(upsample(&pts, &Offsets::paper(DEFAULT_K), 9), upsample(&pts, &Offsets { k: DEFAULT_K, near_k: None, per_point: 1 }, 9));
     }
 }

@@ -14,6 +14,7 @@
 //! here.
 
 use crate::units::Units;
+use crate::io::gltf::Compression;
 
 /// Which field the surface is the level set of.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -85,13 +86,29 @@ pub struct Settings {
     pub tune_theta: bool,
     pub tune_z: bool,
     pub knn_k: usize,
+    pub near_k: Option<usize>,
+    pub extra_pairs: Option<usize>,
     pub label_clip: Option<f32>,
     pub euclidean: bool,
     pub krr_backend: KrrBackend,
     pub trim: Option<f32>,
+    pub triangles: Option<usize>,
+    pub max_error: Option<f32>,
+    pub glb: Compression,
     pub fit: bool,
     pub colors: bool,
     pub units: Option<Units>,
+}
+
+impl Settings {
+    /// How the extra training points are drawn around `n` input points.
+    pub fn offsets(&self, n: usize) -> crate::sample::Offsets {
+        crate::sample::Offsets {
+            k: self.knn_k,
+            near_k: self.near_k,
+            per_point: crate::sample::Offsets::per_point_for(n, self.extra_pairs),
+        }
+    }
 }
 
 impl Default for Settings {
@@ -113,10 +130,15 @@ impl Default for Settings {
             tune_theta: false,
             tune_z: false,
             knn_k: 0,
+            near_k: None,
+            extra_pairs: None,
             label_clip: None,
             euclidean: false,
             krr_backend: KrrBackend::Auto,
             trim: None,
+            triangles: None,
+            max_error: None,
+            glb: Compression::None,
             fit: false,
             colors: false,
             units: None,
@@ -216,6 +238,17 @@ fn opt_f32(v: Value) -> Option<f32> {
     }
 }
 
+fn opt_usize(v: Value) -> Option<usize> {
+    match v {
+        Value::Num(x) => Some(x as usize),
+        _ => None,
+    }
+}
+
+fn from_opt_usize(v: Option<usize>) -> Value {
+    v.map_or(Value::Off, |n| Value::Num(n as f64))
+}
+
 fn from_opt(v: Option<f32>) -> Value {
     v.map_or(Value::Off, |x| Value::Num(x as f64))
 }
@@ -297,11 +330,8 @@ pub static TABLE: &[Setting] = &[
         off_flag: Some("--all-pairs"),
         nkrr_only: true,
         advanced: true,
-        get: |s| s.tune_pairs.map_or(Value::Off, |n| Value::Num(n as f64)),
-        set: |s, v| s.tune_pairs = match v {
-            Value::Num(x) => Some(x as usize),
-            _ => None,
-        },
+        get: |s| from_opt_usize(s.tune_pairs),
+        set: |s, v| s.tune_pairs = opt_usize(v),
         ..BASE
     },
     Setting {
@@ -394,6 +424,52 @@ pub static TABLE: &[Setting] = &[
         ..BASE
     },
     Setting {
+        key: "triangles",
+        flag: "--triangles",
+        label: "Simplify to triangles",
+        help: "simplify the mesh to at most this many triangles by quadric edge collapses (a closed mesh stays closed, a trimmed one keeps its border); off keeps every triangle",
+        kind: Kind::Int { min: 4.0, max: 1e9 },
+        default: Value::Off,
+        can_be_off: true,
+        off_flag: Some("--all-triangles"),
+        presets: &[(100_000.0, "100k"), (20_000.0, "20k"), (5_000.0, "5k")],
+        get: |s| from_opt_usize(s.triangles),
+        set: |s, v| s.triangles = opt_usize(v),
+        ..BASE
+    },
+    Setting {
+        key: "maxError",
+        flag: "--max-error",
+        label: "Simplify within",
+        help: "simplify as long as the surface moves less than this fraction of the object's size (0.001: a millimetre on a metre); with a triangle count, whichever stops first; off: no error bound",
+        kind: Kind::Float { min: 1e-6, max: 1.0 },
+        default: Value::Off,
+        can_be_off: true,
+        presets: &[(0.0005, "0.05 %"), (0.002, "0.2 %"), (0.01, "1 %")],
+        get: |s| from_opt(s.max_error),
+        set: |s, v| s.max_error = opt_f32(v),
+        ..BASE
+    },
+    Setting {
+        key: "glb",
+        flag: "--glb",
+        label: "GLB geometry",
+        help: "how the GLB stores the mesh: plain floats (any glTF reader), quantized (KHR_mesh_quantization, about half the size) or meshopt (quantized and EXT_meshopt_compression, about a tenth; three.js, Babylon.js, model-viewer)",
+        kind: Kind::Choice(&[("plain", "plain floats"), ("quantized", "quantized"), ("meshopt", "meshopt-compressed")]),
+        default: Value::Choice("plain"),
+        get: |s| Value::Choice(match s.glb {
+            Compression::None => "plain",
+            Compression::Quantized => "quantized",
+            Compression::Meshopt => "meshopt",
+        }),
+        set: |s, v| s.glb = match choice(v) {
+            "quantized" => Compression::Quantized,
+            "meshopt" => Compression::Meshopt,
+            _ => Compression::None,
+        },
+        ..BASE
+    },
+    Setting {
         key: "fit",
         flag: "--no-fit",
         label: "Fit the mesh to the points",
@@ -467,6 +543,36 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Num(s.knn_k as f64),
         set: |s, v| s.knn_k = num(v) as usize,
+        ..BASE
+    },
+    Setting {
+        key: "nearK",
+        flag: "--near-k",
+        label: "Near offset neighbour",
+        help: "every other extra training point is offset by the distance to this neighbour instead, nearer the surface (chosen on cow, fandisk, suzanne; docs/results.md); off: one scale (the paper)",
+        kind: Kind::Int { min: 1.0, max: 1000.0 },
+        default: Value::Num(10.0),
+        can_be_off: true,
+        off_flag: Some("--one-scale"),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| from_opt_usize(s.near_k),
+        set: |s, v| s.near_k = opt_usize(v),
+        ..BASE
+    },
+    Setting {
+        key: "extraPairs",
+        flag: "--extra-pairs",
+        label: "Least extra points",
+        help: "sparse clouds get several extra training points per input point, up to 16, so that there are at least this many (chosen on cow, fandisk, suzanne; docs/results.md); off: one per point (the paper)",
+        kind: Kind::Int { min: 1.0, max: 10_000_000.0 },
+        default: Value::Num(4000.0),
+        can_be_off: true,
+        off_flag: Some("--one-pair-per-point"),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| from_opt_usize(s.extra_pairs),
+        set: |s, v| s.extra_pairs = opt_usize(v),
         ..BASE
     },
     Setting {

@@ -340,7 +340,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     if let (Some(o), false) = (rec.translation(), format == MeshFormat::Glb) {
         tell!("warning: {output} stores f32 positions with the offset {o:?} added (use .glb to keep full precision)");
     }
-    let mesh_out::Written { bytes, vertices, triangles } = mesh_out::write(format, &rec.mesh, name, rec.translation(), &comment)
+    let mesh_out::Written { bytes, vertices, triangles } = mesh_out::write(format, &rec.mesh, name, rec.translation(), &comment, settings.glb)
         .map_err(|e| fail(format!("writing {output}: {e}")))?;
     write_file(&output, &bytes)?;
     let times: Vec<String> = rec.timings.iter().map(|(s, t)| format!("{s} {t:.2}s")).collect();
@@ -649,7 +649,7 @@ fn eval(args: &[String]) -> Result<(), Failure> {
                 times = rec.timings.clone();
                 times.push(("total", nkrr::gpu::now() - t0));
                 if keep {
-                    let opts = nkrr::io::gltf::GlbOptions { translation: rec.translation(), ..Default::default() };
+                    let opts = nkrr::io::gltf::GlbOptions { translation: rec.translation(), compression: settings.glb, ..Default::default() };
                     let glb = nkrr::io::gltf::write_glb(&rec.mesh, &opts).map_err(|e| e.to_string())?;
                     let file = format!("{out}-{shape}-{size}-{method}.glb");
                     write_file(&file, &glb).map_err(|f| f.message)?;

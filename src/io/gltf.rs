@@ -43,6 +43,24 @@ pub struct GlbOptions {
     pub translation: Option<[f64; 3]>,
     /// Name of the node and the mesh.
     pub name: Option<String>,
+    /// How the geometry is stored (see [`Compression`]).
+    pub compression: Compression,
+}
+
+/// How a GLB stores its geometry.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Compression {
+    /// Float positions and normals, u32 indices: what every glTF reader reads.
+    #[default]
+    None,
+    /// `KHR_mesh_quantization`: positions as 14-bit integers in u16 (the node's scale and
+    /// translation map them back; the largest error is 1/32766 of the mesh's largest side),
+    /// normals as signed bytes, u16 indices where the vertices allow; vertices in the order
+    /// of first use, unused ones left out.
+    Quantized,
+    /// The same, each buffer view packed by `EXT_meshopt_compression` (meshoptimizer's codecs,
+    /// normals through its octahedral filter); three.js, Babylon.js and model-viewer decode it.
+    Meshopt,
 }
 
 /// What the writer did to make the mesh a clean glTF (see the module documentation).
@@ -52,7 +70,8 @@ pub struct GlbReport {
     pub triangles_written: usize,
     /// Triangles that repeated a vertex index and were left out.
     pub degenerate_triangles_dropped: usize,
-    /// Vertices that no written triangle uses (kept in the file).
+    /// Vertices that no written triangle uses (kept in the file, except by [`Compression`]'s
+    /// compact forms, which leave them out).
     pub unused_vertices: usize,
     /// True when the mesh had no normals and area-weighted ones were computed.
     pub normals_computed: bool,
@@ -142,7 +161,9 @@ const CHUNK_BIN: u32 = 0x004E_4942; // "BIN\0"
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
+const BYTE: u32 = 5120;
 const UNSIGNED_BYTE: u32 = 5121;
+const UNSIGNED_SHORT: u32 = 5123;
 const UNSIGNED_INT: u32 = 5125;
 const MODE_TRIANGLES: u32 = 4;
 
@@ -264,6 +285,19 @@ pub fn write_glb_with_report(
         }
         out
     };
+
+    let report = GlbReport {
+        vertices_written: n,
+        triangles_written: indices.len() / 3,
+        degenerate_triangles_dropped: triangles_in - indices.len() / 3,
+        unused_vertices: used.iter().filter(|u| !**u).count(),
+        normals_computed,
+        normals_repaired,
+        bytes: 0,
+    };
+    if opts.compression != Compression::None {
+        return write_compact(mesh, indices, &normals, opts, report);
+    }
 
     // JSON.
     let has_colors = mesh.colors.is_some();
@@ -392,16 +426,226 @@ pub fn write_glb_with_report(
         out.extend_from_slice(&i.to_le_bytes());
     }
     debug_assert_eq!(out.len() as u64, total);
+    let bytes = out.len();
+    Ok((out, GlbReport { bytes, ..report }))
+}
 
-    let report = GlbReport {
-        vertices_written: n,
-        triangles_written: indices.len() / 3,
-        degenerate_triangles_dropped: triangles_in - indices.len() / 3,
-        unused_vertices: used.iter().filter(|u| !**u).count(),
-        normals_computed,
-        normals_repaired,
-        bytes: out.len(),
+/// Bits of each quantized position coordinate (gltfpack's default: finer costs bytes after
+/// compression and no viewer can show it).
+const POSITION_BITS: u32 = 14;
+
+/// The [`Compression::Quantized`] and [`Compression::Meshopt`] forms of a mesh already checked
+/// by [`write_glb_with_report`]: `indices` without degenerate triangles, `normals` of unit
+/// length, one per vertex.
+fn write_compact(
+    mesh: &Mesh,
+    indices: Vec<u32>,
+    normals: &[[f32; 3]],
+    opts: &GlbOptions,
+    report: GlbReport,
+) -> Result<(Vec<u8>, GlbReport), GltfError> {
+    let meshopt = opts.compression == Compression::Meshopt;
+    // Triangles in vertex-cache order and vertices in the order of first use: what the codecs
+    // compress best (consecutive indices, neighbouring vertices), and what GPUs draw fastest.
+    let indices = meshopt::optimize_vertex_cache(&indices, mesh.positions.len());
+    let mut remap = vec![u32::MAX; mesh.positions.len()];
+    let mut order: Vec<u32> = Vec::new();
+    let indices: Vec<u32> = indices
+        .iter()
+        .map(|&i| {
+            if remap[i as usize] == u32::MAX {
+                remap[i as usize] = order.len() as u32;
+                order.push(i);
+            }
+            remap[i as usize]
+        })
+        .collect();
+    let nv = order.len();
+
+    // Positions: p = origin + q * step, q integer in [0, 2^bits - 1], the same step on every
+    // axis so that the node's scale is uniform and leaves the normals alone.
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for &v in &order {
+        for a in 0..3 {
+            let x = f64::from(mesh.positions[v as usize][a]);
+            lo[a] = lo[a].min(x);
+            hi[a] = hi[a].max(x);
+        }
+    }
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    let levels = f64::from((1u32 << POSITION_BITS) - 1);
+    let step = if extent > 0.0 { extent / levels } else { 1.0 };
+    let mut qmin = [u16::MAX; 3];
+    let mut qmax = [0u16; 3];
+    let mut pos = Vec::with_capacity(8 * nv);
+    for &v in &order {
+        let p = mesh.positions[v as usize];
+        for a in 0..3 {
+            let q = ((f64::from(p[a]) - lo[a]) / step).round().clamp(0.0, levels) as u16;
+            qmin[a] = qmin[a].min(q);
+            qmax[a] = qmax[a].max(q);
+            pos.extend_from_slice(&q.to_le_bytes());
+        }
+        pos.extend_from_slice(&[0, 0]); // padding to the 4-byte vertex stride
+    }
+    let ordered: Vec<[f32; 3]> = order.iter().map(|&v| normals[v as usize]).collect();
+    let nrm = if meshopt {
+        crate::io::meshopt_codec::encode_octahedral(&ordered)
+    } else {
+        ordered.iter().flat_map(|n| [n[0], n[1], n[2]].map(|c| ((c * 127.0).round() as i8) as u8).into_iter().chain([0])).collect()
     };
+    let col: Option<Vec<u8>> = mesh.colors.as_ref().map(|c| order.iter().flat_map(|&v| c[v as usize]).collect());
+    // u16 indices when every index fits below the u16 maximum (which glTF reserves).
+    let short = nv < usize::from(u16::MAX);
+    let (idx_type, idx_size) = if short { (UNSIGNED_SHORT, 2) } else { (UNSIGNED_INT, 4) };
+    let mut idx: Vec<u8> = if short {
+        indices.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect()
+    } else {
+        indices.iter().flat_map(|&i| i.to_le_bytes()).collect()
+    };
+
+    // Buffer views: (raw bytes, stride for vertex data, target, codec mode and filter). The
+    // uncompressed layout is what the views describe in both forms; the meshopt form stores
+    // each view's encoding in the BIN chunk and describes the raw layout in a fallback buffer
+    // with no data.
+    struct View {
+        raw_len: usize,
+        stride: Option<usize>,
+        target: u32,
+        mode: &'static str,
+        filter: Option<&'static str>,
+        stored: Vec<u8>,
+    }
+    let mut views = Vec::new();
+    let mut add = |raw: Vec<u8>, stride: Option<usize>, target, mode, filter| {
+        let stored = match (meshopt, mode) {
+            (false, _) => raw.clone(),
+            (true, "TRIANGLES") => crate::io::meshopt_codec::encode_triangles(&indices, nv),
+            (true, _) => crate::io::meshopt_codec::encode_vertices(&raw, stride.unwrap_or(4)),
+        };
+        views.push(View { raw_len: raw.len(), stride, target, mode, filter, stored });
+    };
+    add(pos, Some(8), ARRAY_BUFFER, "ATTRIBUTES", None);
+    add(nrm, Some(4), ARRAY_BUFFER, "ATTRIBUTES", meshopt.then_some("OCTAHEDRAL"));
+    let has_colors = col.is_some();
+    if let Some(c) = col {
+        add(c, Some(4), ARRAY_BUFFER, "ATTRIBUTES", None);
+    }
+    while idx.len() % 4 != 0 {
+        idx.push(0);
+    }
+    let idx_raw_len = indices.len() * idx_size;
+    add(idx, None, ELEMENT_ARRAY_BUFFER, "TRIANGLES", None);
+    let last = views.len() - 1;
+    views[last].raw_len = idx_raw_len;
+
+    let pad4 = |x: usize| x.div_ceil(4) * 4;
+    let raw_total: usize = views.iter().map(|v| pad4(v.raw_len)).sum();
+    let bin_len: usize = views.iter().map(|v| pad4(v.stored.len())).sum();
+
+    let mut j = String::with_capacity(4096);
+    j.push_str("{\"asset\":{\"version\":\"2.0\",\"generator\":");
+    push_json_string(&mut j, concat!("nkrr ", env!("CARGO_PKG_VERSION")));
+    j.push_str("},");
+    if meshopt {
+        j.push_str("\"extensionsUsed\":[\"KHR_mesh_quantization\",\"EXT_meshopt_compression\"],\"extensionsRequired\":[\"KHR_mesh_quantization\",\"EXT_meshopt_compression\"],");
+    } else {
+        j.push_str("\"extensionsUsed\":[\"KHR_mesh_quantization\"],\"extensionsRequired\":[\"KHR_mesh_quantization\"],");
+    }
+    j.push_str("\"scene\":0,\"scenes\":[{\"nodes\":[0]}],\"nodes\":[{\"mesh\":0");
+    if let Some(name) = &opts.name {
+        j.push_str(",\"name\":");
+        push_json_string(&mut j, name);
+    }
+    let t = opts.translation.unwrap_or([0.0; 3]);
+    let origin = [0, 1, 2].map(|a| t[a] + lo[a]);
+    let _ = write!(j, ",\"translation\":[{},{},{}]", JsonF64(origin[0]), JsonF64(origin[1]), JsonF64(origin[2]));
+    let _ = write!(j, ",\"scale\":[{0},{0},{0}]", JsonF64(step));
+    j.push_str("}],\"meshes\":[{");
+    if let Some(name) = &opts.name {
+        j.push_str("\"name\":");
+        push_json_string(&mut j, name);
+        j.push(',');
+    }
+    j.push_str("\"primitives\":[{\"attributes\":{\"POSITION\":0,\"NORMAL\":1");
+    if has_colors {
+        j.push_str(",\"COLOR_0\":2");
+    }
+    let idx_acc = if has_colors { 3 } else { 2 };
+    let _ = write!(j, "}},\"indices\":{idx_acc},\"material\":0,\"mode\":{MODE_TRIANGLES}}}]}}],");
+    j.push_str("\"materials\":[{\"name\":\"nkrr default\",\"pbrMetallicRoughness\":{");
+    if !has_colors {
+        j.push_str("\"baseColorFactor\":[0.8,0.8,0.8,1],");
+    }
+    j.push_str("\"metallicFactor\":0,\"roughnessFactor\":0.6},\"doubleSided\":false}],");
+    if meshopt {
+        let _ = write!(j, "\"buffers\":[{{\"byteLength\":{bin_len}}},{{\"byteLength\":{raw_total},\"extensions\":{{\"EXT_meshopt_compression\":{{\"fallback\":true}}}}}}],");
+    } else {
+        let _ = write!(j, "\"buffers\":[{{\"byteLength\":{bin_len}}}],");
+    }
+    j.push_str("\"bufferViews\":[");
+    let (mut raw_off, mut bin_off) = (0usize, 0usize);
+    for (k, v) in views.iter().enumerate() {
+        if k > 0 {
+            j.push(',');
+        }
+        let _ = write!(j, "{{\"buffer\":{},\"byteOffset\":{raw_off},\"byteLength\":{}", usize::from(meshopt), v.raw_len);
+        if let Some(s) = v.stride {
+            let _ = write!(j, ",\"byteStride\":{s}");
+        }
+        let _ = write!(j, ",\"target\":{}", v.target);
+        if meshopt {
+            let count = if v.mode == "TRIANGLES" { indices.len() } else { nv };
+            let _ = write!(
+                j,
+                ",\"extensions\":{{\"EXT_meshopt_compression\":{{\"buffer\":0,\"byteOffset\":{bin_off},\"byteLength\":{},\"byteStride\":{},\"count\":{count},\"mode\":\"{}\"",
+                v.stored.len(),
+                v.stride.unwrap_or(idx_size),
+                v.mode
+            );
+            if let Some(f) = v.filter {
+                let _ = write!(j, ",\"filter\":\"{f}\"");
+            }
+            j.push_str("}}");
+        }
+        j.push('}');
+        raw_off += pad4(v.raw_len);
+        bin_off += pad4(v.stored.len());
+    }
+    j.push_str("],\"accessors\":[");
+    let _ = write!(
+        j,
+        "{{\"bufferView\":0,\"componentType\":{UNSIGNED_SHORT},\"count\":{nv},\"type\":\"VEC3\",\"min\":[{},{},{}],\"max\":[{},{},{}]}},",
+        qmin[0], qmin[1], qmin[2], qmax[0], qmax[1], qmax[2]
+    );
+    let _ = write!(j, "{{\"bufferView\":1,\"componentType\":{BYTE},\"normalized\":true,\"count\":{nv},\"type\":\"VEC3\"}},");
+    if has_colors {
+        let _ = write!(j, "{{\"bufferView\":2,\"componentType\":{UNSIGNED_BYTE},\"normalized\":true,\"count\":{nv},\"type\":\"VEC4\"}},");
+    }
+    let _ = write!(j, "{{\"bufferView\":{idx_acc},\"componentType\":{idx_type},\"count\":{},\"type\":\"SCALAR\"}}]}}", indices.len());
+    while !j.len().is_multiple_of(4) {
+        j.push(' ');
+    }
+
+    let total = 12 + 8 + j.len() + 8 + bin_len;
+    if total as u64 > u64::from(u32::MAX) {
+        return Err(GltfError::TooLarge { what: "GLB file", needed: total as u64, limit: u64::from(u32::MAX) });
+    }
+    let mut out: Vec<u8> = Vec::with_capacity(total);
+    for w in [GLB_MAGIC, GLB_VERSION, total as u32, j.len() as u32, CHUNK_JSON] {
+        out.extend_from_slice(&w.to_le_bytes());
+    }
+    out.extend_from_slice(j.as_bytes());
+    for w in [bin_len as u32, CHUNK_BIN] {
+        out.extend_from_slice(&w.to_le_bytes());
+    }
+    for v in &views {
+        out.extend_from_slice(&v.stored);
+        out.resize(pad4(out.len()), 0);
+    }
+    debug_assert_eq!(out.len(), total);
+    let report = GlbReport { vertices_written: nv, bytes: total, ..report };
     Ok((out, report))
 }
 

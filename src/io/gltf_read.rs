@@ -7,6 +7,10 @@
 //! `f64`, and appended: positions, then indices offset by the vertices already read. Non-indexed
 //! primitives get `0, 1, 2, ...`. Only positions and indices are read. Buffers must live in the
 //! GLB's BIN chunk; points, lines, strips and fans are rejected rather than silently dropped.
+//!
+//! Compact files (`EXT_meshopt_compression`, `KHR_mesh_quantization`: what `--glb meshopt` and
+//! `--glb quantized` write, and gltfpack) are first expanded into a plain GLB ([`expand`]):
+//! the compressed views decoded, integer positions turned into floats.
 
 use std::fmt;
 
@@ -27,6 +31,8 @@ impl std::error::Error for GlbReadError {}
 /// The world-space triangles of a GLB (see the module documentation).
 pub fn read_glb(bytes: &[u8]) -> Result<Mesh, GlbReadError> {
     let err = |s: String| GlbReadError(s);
+    let expanded = expand(bytes)?;
+    let bytes = expanded.as_deref().unwrap_or(bytes);
     let doc = ::gltf::Gltf::from_slice(bytes).map_err(|e| err(format!("not a valid glTF binary: {e}")))?;
     let blob = doc.blob.as_deref();
     let mut mesh = Mesh::default();
@@ -112,4 +118,149 @@ fn mat_mul(a: &[[f64; 4]; 4], b: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
         }
     }
     c
+}
+
+const MESHOPT: &str = "EXT_meshopt_compression";
+const QUANTIZATION: &str = "KHR_mesh_quantization";
+
+/// A GLB's JSON and BIN chunks.
+fn chunks(bytes: &[u8]) -> Result<(serde_json::Value, &[u8]), GlbReadError> {
+    let err = |s: &str| GlbReadError(format!("not a valid glTF binary: {s}"));
+    let word = |at: usize| bytes.get(at..at + 4).map(|b| u32::from_le_bytes(b.try_into().unwrap()) as usize);
+    if word(0) != Some(0x4654_6C67) {
+        return Err(err("no glTF magic"));
+    }
+    let json_len = word(12).ok_or_else(|| err("truncated header"))?;
+    let json = bytes.get(20..20 + json_len).ok_or_else(|| err("truncated JSON chunk"))?;
+    let json: serde_json::Value = serde_json::from_slice(json).map_err(|e| err(&format!("JSON: {e}")))?;
+    let at = 20 + json_len;
+    let bin = match word(at) {
+        Some(len) => bytes.get(at + 8..at + 8 + len).ok_or_else(|| err("truncated BIN chunk"))?,
+        None => &[],
+    };
+    Ok((json, bin))
+}
+
+/// A plain GLB with the same content as `bytes`, when `bytes` uses `EXT_meshopt_compression`
+/// or `KHR_mesh_quantization` (else `None`): every buffer view's bytes in one new BIN chunk
+/// (compressed ones decoded), and every `POSITION` accessor as floats.
+pub fn expand(bytes: &[u8]) -> Result<Option<Vec<u8>>, GlbReadError> {
+    use serde_json::{json, Value};
+    let err = |s: String| GlbReadError(s);
+    if bytes.len() < 20 || !bytes[..20.min(bytes.len())].starts_with(b"glTF") {
+        return Ok(None); // not ours to judge: the gltf crate says what is wrong
+    }
+    let (mut doc, bin) = chunks(bytes)?;
+    let used: Vec<String> = doc["extensionsUsed"].as_array().map(|a| a.iter().filter_map(|v| v.as_str().map(String::from)).collect()).unwrap_or_default();
+    if !used.iter().any(|e| e == MESHOPT || e == QUANTIZATION) {
+        return Ok(None);
+    }
+    let num = |v: &Value, what: &str| v.as_u64().map(|x| x as usize).ok_or_else(|| err(format!("{what} is missing or not a whole number")));
+    // Which buffers are the BIN chunk (no uri); fallback buffers have no data of their own.
+    let buffers = doc["buffers"].as_array().cloned().unwrap_or_default();
+    let is_bin = |b: usize| buffers.get(b).is_some_and(|v| v.get("uri").is_none() && v["extensions"][MESHOPT]["fallback"] != json!(true));
+    let mut out: Vec<u8> = Vec::new();
+    let views = doc["bufferViews"].as_array_mut().ok_or_else(|| err("no bufferViews".into()))?;
+    for (i, view) in views.iter_mut().enumerate() {
+        let what = |s: &str| format!("bufferViews[{i}].{s}");
+        let ext = view["extensions"][MESHOPT].clone();
+        let data: Vec<u8> = if ext.is_object() {
+            let (b, off, len) = (num(&ext["buffer"], &what("extensions.buffer"))?, num(&ext["byteOffset"], &what("byteOffset")).unwrap_or(0), num(&ext["byteLength"], &what("byteLength"))?);
+            if !is_bin(b) {
+                return Err(err(format!("{} points to buffer {b}, not the GLB's BIN chunk", what("extensions"))));
+            }
+            let src = bin.get(off..off + len).ok_or_else(|| err(format!("{} reaches past the BIN chunk", what("extensions"))))?;
+            let (count, stride) = (num(&ext["count"], &what("count"))?, num(&ext["byteStride"], &what("byteStride"))?);
+            let mode = ext["mode"].as_str().unwrap_or("");
+            let mut raw = crate::io::meshopt_codec::decode(src, count, stride, mode, ext["filter"].as_str()).map_err(|e| err(format!("{}: {}", what("extensions"), e.0)))?;
+            raw.truncate(num(&view["byteLength"], &what("byteLength"))?.min(raw.len()));
+            raw
+        } else {
+            let (b, off, len) = (num(&view["buffer"], &what("buffer"))?, num(&view["byteOffset"], &what("byteOffset")).unwrap_or(0), num(&view["byteLength"], &what("byteLength"))?);
+            if !is_bin(b) {
+                return Err(err(format!("{} points to buffer {b}, not the GLB's BIN chunk", what("buffer"))));
+            }
+            bin.get(off..off + len).ok_or_else(|| err(format!("{} reaches past the BIN chunk", what("byteLength"))))?.to_vec()
+        };
+        out.resize(out.len().div_ceil(4) * 4, 0);
+        let obj = view.as_object_mut().ok_or_else(|| err(what("")))?;
+        obj.insert("buffer".into(), json!(0));
+        obj.insert("byteOffset".into(), json!(out.len()));
+        obj.insert("byteLength".into(), json!(data.len()));
+        obj.remove("extensions");
+        out.extend_from_slice(&data);
+    }
+
+    // Integer positions as floats, in new views: the gltf crate reads positions as f32 only.
+    let positions: Vec<usize> = doc["meshes"].as_array().into_iter().flatten().flat_map(|m| m["primitives"].as_array().into_iter().flatten()).filter_map(|p| p["attributes"]["POSITION"].as_u64().map(|a| a as usize)).collect();
+    for a in positions {
+        let acc = doc["accessors"][a].clone();
+        let ct = acc["componentType"].as_u64().unwrap_or(0);
+        if ct == 5126 {
+            continue;
+        }
+        let what = |s: &str| format!("accessors[{a}].{s}");
+        let (size, scale): (usize, f64) = match ct {
+            5120 => (1, 127.0),
+            5121 => (1, 255.0),
+            5122 => (2, 32767.0),
+            5123 => (2, 65535.0),
+            _ => return Err(err(format!("{} {ct} is not one glTF allows for POSITION", what("componentType")))),
+        };
+        let normalized = acc["normalized"] == json!(true);
+        let count = num(&acc["count"], &what("count"))?;
+        let v = num(&acc["bufferView"], &what("bufferView"))?;
+        let view = &doc["bufferViews"][v];
+        let stride = view["byteStride"].as_u64().map_or(3 * size, |s| s as usize);
+        let base = num(&view["byteOffset"], "byteOffset")? + acc["byteOffset"].as_u64().unwrap_or(0) as usize;
+        let mut floats: Vec<u8> = Vec::with_capacity(12 * count);
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for e in 0..count {
+            for c in 0..3 {
+                let at = base + e * stride + c * size;
+                let b = out.get(at..at + size).ok_or_else(|| err(format!("{} reaches past its buffer view", what("count"))))?;
+                let x = match ct {
+                    5120 => f64::from(b[0] as i8),
+                    5121 => f64::from(b[0]),
+                    5122 => f64::from(i16::from_le_bytes([b[0], b[1]])),
+                    _ => f64::from(u16::from_le_bytes([b[0], b[1]])),
+                };
+                // Normalised signed values clamp at -1 (the spec's max(c / 127, -1)).
+                let x = if normalized { (x / scale).max(-1.0) } else { x } as f32;
+                lo[c] = lo[c].min(x);
+                hi[c] = hi[c].max(x);
+                floats.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        out.resize(out.len().div_ceil(4) * 4, 0);
+        let new_view = doc["bufferViews"].as_array().map_or(0, Vec::len);
+        doc["bufferViews"].as_array_mut().unwrap().push(json!({"buffer": 0, "byteOffset": out.len(), "byteLength": floats.len()}));
+        out.extend_from_slice(&floats);
+        let mut acc = json!({"bufferView": new_view, "componentType": 5126, "count": count, "type": "VEC3"});
+        if count > 0 {
+            acc["min"] = json!(lo);
+            acc["max"] = json!(hi);
+        }
+        doc["accessors"][a] = acc;
+    }
+    out.resize(out.len().div_ceil(4) * 4, 0);
+    doc["buffers"] = json!([{"byteLength": out.len()}]);
+    for key in ["extensionsUsed", "extensionsRequired"] {
+        if let Some(list) = doc[key].as_array_mut() {
+            list.retain(|e| e != MESHOPT && e != QUANTIZATION);
+        }
+    }
+    let mut text = serde_json::to_vec(&doc).map_err(|e| err(e.to_string()))?;
+    text.resize(text.len().div_ceil(4) * 4, b' ');
+    let total = 12 + 8 + text.len() + 8 + out.len();
+    let mut glb = Vec::with_capacity(total);
+    for w in [0x4654_6C67u32, 2, total as u32, text.len() as u32, 0x4E4F_534A] {
+        glb.extend_from_slice(&w.to_le_bytes());
+    }
+    glb.extend_from_slice(&text);
+    for w in [out.len() as u32, 0x004E_4942] {
+        glb.extend_from_slice(&w.to_le_bytes());
+    }
+    glb.extend_from_slice(&out);
+    Ok(Some(glb))
 }

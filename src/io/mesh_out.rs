@@ -47,16 +47,18 @@ pub struct Written {
 /// `mesh` as a file of `format`: the one dispatch the CLI's `-o` and the page's downloads share.
 /// `translation` is a far-off cloud's origin: GLB keeps it as the root node's translation (f64);
 /// the other formats have none, so it is added to their positions (in f64, then rounded to
-/// f32, losing precision there). `name` names the glTF node; `comment` heads the other formats.
+/// f32, losing precision there). `name` names the glTF node; `comment` heads the other formats;
+/// `compression` is the GLB's (the other formats have none).
 pub fn write(
     format: MeshFormat,
     mesh: &Mesh,
     name: Option<String>,
     translation: Option<[f64; 3]>,
     comment: &str,
+    compression: crate::io::gltf::Compression,
 ) -> Result<Written, String> {
     if format == MeshFormat::Glb {
-        let (bytes, r) = crate::io::gltf::write_glb_with_report(mesh, &crate::io::gltf::GlbOptions { name, translation })
+        let (bytes, r) = crate::io::gltf::write_glb_with_report(mesh, &crate::io::gltf::GlbOptions { name, translation, compression })
             .map_err(|e| e.to_string())?;
         return Ok(Written { bytes, vertices: r.vertices_written, triangles: r.triangles_written });
     }

@@ -7,6 +7,7 @@ mod builder;
 mod bytes;
 pub mod gltf;
 pub mod mesh_out;
+pub mod meshopt_codec;
 #[cfg(all(feature = "read-glb", not(target_arch = "wasm32")))]
 pub mod gltf_read;
 pub mod e57;

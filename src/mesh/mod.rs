@@ -9,6 +9,7 @@ pub mod fit;
 pub mod marching_cubes;
 pub mod marching_cubes_gpu;
 pub mod refine;
+pub mod simplify;
 pub mod tables;
 pub mod trim;
 mod types;

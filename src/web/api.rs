@@ -86,7 +86,8 @@ pub fn simulate_device_loss() -> bool {
 /// triangle, possibly a subset after trimming), so downloads match what the view shows.
 /// `format` is "glb", "ply", "obj" or "stl"; vertices no triangle uses are left out;
 /// `translation` (empty or xyz) is the GLB root translation of far-off clouds (the other
-/// formats add it to their f32 positions).
+/// formats add it to their f32 positions); `glb` is the GLB geometry ("plain", "quantized" or
+/// "meshopt": the `glb` setting's values).
 #[wasm_bindgen]
 pub fn mesh_file(
     format: &str,
@@ -96,6 +97,7 @@ pub fn mesh_file(
     indices: &[u32],
     name: &str,
     translation: &[f64],
+    glb: &str,
 ) -> Result<Vec<u8>, JsError> {
     let n = positions.len() / 3;
     if positions.len() % 3 != 0 || normals.len() != positions.len() || !(colors.is_empty() || colors.len() == 4 * n) {
@@ -116,7 +118,13 @@ pub fn mesh_file(
     let translation: Option<[f64; 3]> = (translation.len() == 3).then(|| [translation[0], translation[1], translation[2]]);
     let format = MeshFormat::from_extension(format)
         .ok_or_else(|| JsError::new(&format!("mesh_file: unknown format '{format}' (glb, ply, obj or stl)")))?;
-    mesh_out::write(format, &mesh, Some(name.to_string()), translation, &format!("nkrr reconstruction of {name}"))
+    let mut settings = Settings::default();
+    let glb_setting = settings::by_key("glb").expect("in the table");
+    glb_setting
+        .parse(glb)
+        .and_then(|v| glb_setting.set(&mut settings, v))
+        .map_err(|e| JsError::new(&format!("mesh_file: {e}")))?;
+    mesh_out::write(format, &mesh, Some(name.to_string()), translation, &format!("nkrr reconstruction of {name}"), settings.glb)
         .map(|w| w.bytes)
         .map_err(|e| JsError::new(&format!("mesh_file ({format:?}): {e}")))
 }
@@ -198,7 +206,7 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
     if mesh.normals.len() != mesh.positions.len() {
         mesh.compute_vertex_normals();
     }
-    let (glb, report) = gltf::write_glb_with_report(&mesh, &gltf::GlbOptions { name: opts.name.clone(), translation })
+    let (glb, report) = gltf::write_glb_with_report(&mesh, &gltf::GlbOptions { name: opts.name.clone(), translation, compression: opts.settings.glb })
         .map_err(|e| error("GltfError", &format!("the mesh could not be written as glTF: {e}")))?;
     let mut timings: Vec<(&str, f64)> = vec![("setup", t_ready - t0)];
     timings.extend(rec.timings.iter().copied());

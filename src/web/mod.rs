@@ -3,6 +3,7 @@
 //! The DOM (drop zone, panels, events) stays in `web/app.js`; Rust owns the data and the GPU.
 
 mod api;
+mod cxx_alloc;
 mod cloud;
 mod js;
 mod viewer;
