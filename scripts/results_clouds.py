@@ -2,12 +2,14 @@
 tests/data/eval, plus NAME-500.ply (500 points uniform on NAME.obj's surface, Gaussian noise
 sigma = 0.005 x the longest bbox side, seed 3, binary little-endian PLY, x y z float32) and the
 synthetic scaling clouds scale-N.ply (N points on spot.obj, same noise, seed 4).
-usage: results_clouds.py DATA WORK"""
+usage: results_clouds.py DATA WORK  (.venv: trimesh)
+
+write_ply, surface_samples and noisy_samples need only numpy (trimesh is imported by main()
+alone), so scripts/hard_clouds.py uses them from .venv-peers, which has Open3D but no trimesh."""
 import os
 import sys
 
 import numpy as np
-import trimesh
 
 SCALE_SIZES = [1000, 3000, 10000, 30000, 100000, 300000, 1000000]
 
@@ -21,20 +23,34 @@ def write_ply(path, pts):
     os.replace(path + ".tmp", path)
 
 
-def noisy_samples(mesh, n, seed):
-    rng = np.random.default_rng(seed)
+def surface_samples(mesh, n, rng):
+    """N points uniform on the surface of MESH (anything with area_faces and triangles, as a
+    trimesh.Trimesh): a face by area, then a uniform point in it; draws from RNG."""
     area = mesh.area_faces
     fi = rng.choice(len(area), size=n, p=area / area.sum())
     u, v = rng.random(n), rng.random(n)
     flip = u + v > 1
     u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
     tri = mesh.triangles[fi]
-    pts = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
-    sigma = 0.005 * float(np.max(mesh.bounds[1] - mesh.bounds[0]))
-    return pts + rng.normal(0.0, sigma, pts.shape)
+    return tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
+
+
+def noise_sigma(mesh, rel=0.005):
+    """The eval clouds' noise: REL x the longest side of MESH's bounding box (mesh.bounds)."""
+    return rel * float(np.max(mesh.bounds[1] - mesh.bounds[0]))
+
+
+def noisy_samples(mesh, n, seed, rel_sigma=0.005):
+    """N uniform surface points plus isotropic Gaussian noise of noise_sigma(mesh, REL_SIGMA),
+    from default_rng(SEED): the eval clouds' convention (NAME-500.ply, the scaling clouds)."""
+    rng = np.random.default_rng(seed)
+    pts = surface_samples(mesh, n, rng)
+    return pts + rng.normal(0.0, noise_sigma(mesh, rel_sigma), pts.shape)
 
 
 def main():
+    import trimesh
+
     data, work = sys.argv[1], sys.argv[2]
     os.makedirs(work, exist_ok=True)
     names = sorted(f[:-4] for f in os.listdir(data) if f.endswith(".obj"))

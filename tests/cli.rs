@@ -256,3 +256,38 @@ fn no_surface_says_why() {
     assert!(!err.contains("empty mesh"), "{err}");
     assert!(!out.exists(), "nothing is written");
 }
+
+#[test]
+fn simplified_and_compressed_glbs_keep_the_surface() {
+    // The web-viewer outputs on a 10k eval cloud: a meshopt-compressed GLB at most a quarter of
+    // the plain one's size at the same triangles, and one simplified to 10 % of them within
+    // 0.02 CD1 x100 of the full mesh; both read back closed by `nkrr metrics`.
+    let dir = std::env::temp_dir().join(format!("nkrr-cli-compact-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cloud = eval("spot-10k.ply");
+    let out = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    let run = |name: &str, extra: &[&str]| -> usize {
+        let o = out(name);
+        let mut args = vec!["reconstruct", &cloud, "-o", &o, "--method", "network"];
+        args.extend_from_slice(extra);
+        let (code, stdout, stderr) = nkrr(&args);
+        assert_eq!(code, 0, "{name}: {stderr}");
+        assert!(stdout.contains("watertight: yes"), "{name}: {stdout}");
+        stdout.split(" triangles").next().unwrap().rsplit(' ').next().unwrap().parse().unwrap()
+    };
+    let full = run("plain.glb", &[]);
+    assert_eq!(run("meshopt.glb", &["--glb", "meshopt"]), full);
+    let tenth = (full / 10).to_string();
+    let simplified = run("simplified.glb", &["--glb", "meshopt", "--triangles", &tenth]);
+    assert!(simplified <= full / 10 && simplified > full / 12, "{simplified} of {full}");
+    let size = |name: &str| std::fs::metadata(out(name)).unwrap().len();
+    assert!(4 * size("meshopt.glb") <= size("plain.glb"), "{} vs {}", size("meshopt.glb"), size("plain.glb"));
+    let (code, stdout, stderr) = nkrr(&["metrics", &eval("spot.obj"), &out("plain.glb"), &out("meshopt.glb"), &out("simplified.glb")]);
+    assert_eq!(code, 0, "{stderr}");
+    let lines: Vec<&str> = stdout.lines().collect();
+    let cd: Vec<f64> = lines.iter().map(|l| field(l, "cd1x100").parse().unwrap()).collect();
+    assert!(lines.iter().all(|l| field(l, "watertight") == "true"), "{stdout}");
+    assert!((cd[1] - cd[0]).abs() < 0.005, "compression moved the surface: {cd:?}");
+    assert!(cd[2] - cd[0] < 0.02, "simplification lost too much: {cd:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -7,7 +7,7 @@ use common::run_validator;
 use std::path::{Path, PathBuf};
 
 use gltf::json::Value;
-use nkrr::io::gltf::{write_glb, write_glb_with_report, GlbOptions, GltfError};
+use nkrr::io::gltf::{write_glb, write_glb_with_report, Compression, GlbOptions, GltfError};
 use nkrr::mesh::Mesh;
 use proptest::prelude::*;
 
@@ -273,7 +273,7 @@ fn round_trip_odd_coordinates_keeps_exact_bounds() {
 #[test]
 fn glb_layout_scene_node_translation_and_name() {
     let name = "a \"quoted\" \\ name\nwith\ttabs, \u{1} control, é and 漢字";
-    let opts = GlbOptions { translation: Some([5e6, -5e6, 5e6 + 0.125]), name: Some(name.into()) };
+    let opts = GlbOptions { translation: Some([5e6, -5e6, 5e6 + 0.125]), name: Some(name.into()), ..Default::default() };
     let mut m = icosphere(1, true);
     m.positions.iter_mut().for_each(|p| p[0] += 0.5);
     let glb = write_glb(&m, &opts).unwrap();
@@ -434,7 +434,7 @@ fn invalid_meshes_are_errors_not_panics() {
     assert_eq!(err(&m), GltfError::AllTrianglesDegenerate { triangles: 2 });
 
     for t in [[f64::NAN, 0.0, 0.0], [0.0, f64::INFINITY, 0.0]] {
-        let opts = GlbOptions { translation: Some(t), name: None };
+        let opts = GlbOptions { translation: Some(t), ..Default::default() };
         assert!(matches!(write_glb(&cube(), &opts), Err(GltfError::NonFiniteTranslation { .. })));
     }
 
@@ -640,6 +640,7 @@ fn khronos_validator_finds_no_errors_or_warnings() {
                 &GlbOptions {
                     translation: Some([5e6, -5e6, 5e6 + 0.125]),
                     name: Some("reconstruction \"#1\" \\ é\n".into()),
+                    ..Default::default()
                 },
             )
             .unwrap(),
@@ -670,4 +671,102 @@ fn khronos_validator_script_fails_on_a_broken_file() {
     let (ok, text) = run_validator(&[write_to(&dir, "broken_max.glb", &glb)]);
     assert!(!ok, "{text}");
     assert!(text.contains("ACCESSOR_MAX_MISMATCH"), "{text}");
+}
+
+/// Every compact form of `mesh`, written with `translation`.
+fn compact_forms(mesh: &Mesh, translation: Option<[f64; 3]>) -> Vec<(Compression, Vec<u8>)> {
+    [Compression::Quantized, Compression::Meshopt]
+        .into_iter()
+        .map(|c| (c, write_glb(mesh, &GlbOptions { translation, compression: c, ..Default::default() }).unwrap()))
+        .collect()
+}
+
+#[test]
+fn compact_glbs_read_back_to_the_same_surface() {
+    // A torus with colours, far from the origin: every compact form must give back the same
+    // triangles (as position triples, in any vertex order, each corner within the
+    // quantization step) and nothing else.
+    let mut mesh = torus(60, 40);
+    mesh.colors = Some((0..mesh.positions.len()).map(|i| [(i % 256) as u8, 3, 200, 255]).collect());
+    let t = [1000.5, -20.0, 3.25];
+    let extent = 2.6f64; // the torus's largest side: 2 × (1 + 0.3), see `torus`
+    let step = extent / f64::from((1u32 << 14) - 1);
+    let plain = nkrr::io::gltf_read::read_glb(&write_glb(&mesh, &GlbOptions { translation: Some(t), ..Default::default() }).unwrap()).unwrap();
+    // A triangle as its corners' indices in `plain`, rotated to start at the smallest (the
+    // codec may rotate corners, never flip them).
+    let canonical = |t: [u32; 3]| {
+        let k = (0..3).min_by_key(|&k| t[k]).unwrap();
+        [t[k], t[(k + 1) % 3], t[(k + 2) % 3]]
+    };
+    let mut want: Vec<[u32; 3]> = plain.indices.chunks_exact(3).map(|t| canonical([t[0], t[1], t[2]])).collect();
+    want.sort_unstable();
+    for (c, glb) in compact_forms(&mesh, Some(t)) {
+        let back = nkrr::io::gltf_read::read_glb(&glb).unwrap_or_else(|e| panic!("{c:?}: {e}"));
+        assert_eq!(back.triangle_count(), plain.triangle_count(), "{c:?}");
+        assert_eq!(back.positions.len(), plain.positions.len(), "{c:?}");
+        // Each read-back vertex is its nearest plain one, within half a step per axis (plus
+        // f32 rounding at |x| = 1000).
+        let nearest: Vec<u32> = back
+            .positions
+            .iter()
+            .map(|p| {
+                let dist = |q: &[f32; 3]| (0..3).map(|a| (f64::from(p[a]) - f64::from(q[a])).abs()).fold(0.0, f64::max);
+                let (i, q) = plain.positions.iter().enumerate().min_by(|x, y| dist(x.1).total_cmp(&dist(y.1))).unwrap();
+                assert!(dist(q) <= 0.5 * step + 2e-4, "{c:?}: a vertex moved by {} (step {step})", dist(q));
+                i as u32
+            })
+            .collect();
+        let mut got: Vec<[u32; 3]> = back.indices.chunks_exact(3).map(|t| canonical([t[0], t[1], t[2]].map(|i| nearest[i as usize]))).collect();
+        got.sort_unstable();
+        assert_eq!(got, want, "{c:?}: other triangles");
+        assert!(back.is_watertight(), "{c:?}");
+    }
+}
+
+#[test]
+fn compact_glbs_are_small_and_valid() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("gltf_validator_compact");
+    std::fs::create_dir_all(&dir).unwrap();
+    let big = torus(250, 200);
+    let plain = write_glb(&big, &GlbOptions::default()).unwrap();
+    let forms = compact_forms(&big, None);
+    let (quantized, meshopt) = (&forms[0].1, &forms[1].1);
+    // Quantized: 8 + 4 bytes a vertex and 4-byte indices (50k vertices need u32), against 24 + 4.
+    assert!(quantized.len() * 10 < plain.len() * 6, "{} vs {}", quantized.len(), plain.len());
+    assert!(meshopt.len() * 4 < plain.len(), "meshopt {} vs plain {}", meshopt.len(), plain.len());
+    let mut files = vec![write_to(&dir, "torus_quantized.glb", quantized), write_to(&dir, "torus_meshopt.glb", meshopt)];
+    for (c, glb) in compact_forms(&icosphere(3, true), Some([5e6, -5e6, 1.0])) {
+        files.push(write_to(&dir, &format!("icosphere_colors_{c:?}.glb"), &glb));
+    }
+    let (ok, text) = run_validator(&files);
+    println!("{text}");
+    assert!(ok && text.contains("TOTAL errors=0 warnings=0"), "{text}");
+    // The validator cannot look inside EXT_meshopt_compression (it says so as an info); the
+    // decoding is checked by the read-back test above and by three.js in the browser tests.
+    assert!(text.contains("torus_quantized.glb: errors=0 warnings=0 infos=0 hints=0"), "{text}");
+}
+
+#[test]
+fn corrupt_compressed_views_are_errors_not_panics() {
+    let glb = write_glb(&icosphere(3, false), &GlbOptions { compression: Compression::Meshopt, ..Default::default() }).unwrap();
+    // Flip bytes through the BIN chunk: every read must end in Ok or a message, never a panic.
+    let bin_start = 20 + u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize + 8;
+    let mut errors = 0;
+    for at in (bin_start..glb.len()).step_by(7) {
+        let mut bad = glb.clone();
+        bad[at] ^= 0x5a;
+        if nkrr::io::gltf_read::read_glb(&bad).is_err() {
+            errors += 1;
+        }
+    }
+    assert!(errors > 0, "no corruption was noticed");
+    // A compressed view that points elsewhere is named.
+    let text = String::from_utf8_lossy(&glb).into_owned();
+    let needle = "\"EXT_meshopt_compression\":{\"buffer\":0,\"byteOffset\":0,";
+    assert!(text.contains(needle), "{text}");
+    let mut bad = glb.clone();
+    let at = bad.windows(needle.len()).position(|w| w == needle.as_bytes()).unwrap() + needle.len() - 2;
+    bad[at] = b'9';
+    let e = nkrr::io::gltf_read::read_glb(&bad).unwrap_err().to_string();
+    assert!(e.contains("bufferViews[0]") && e.contains("does not decode"), "{e}");
 }

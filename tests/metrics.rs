@@ -310,7 +310,7 @@ fn glb_round_trip_and_errors() {
     let back = read_glb(&write_glb(&m, &GlbOptions::default()).unwrap()).unwrap();
     assert_eq!((back.positions.clone(), back.indices.clone()), (m.positions.clone(), m.indices.clone()));
     // The node's translation is applied.
-    let glb = write_glb(&m, &GlbOptions { translation: Some([10.0, 0.0, -2.0]), name: None }).unwrap();
+    let glb = write_glb(&m, &GlbOptions { translation: Some([10.0, 0.0, -2.0]), ..Default::default() }).unwrap();
     let moved = read_glb(&glb).unwrap();
     for (a, b) in moved.positions.iter().zip(&m.positions) {
         assert_eq!(*a, [b[0] + 10.0, b[1], b[2] - 2.0]);
