@@ -113,11 +113,23 @@ def spsr_phase(work):
     out = os.path.join(work, "spsr")
     jl = os.path.join(out, "spsr.jsonl")
     if not (os.path.exists(jl) and len(open(jl).read().splitlines()) == 18):
-        t0 = time.time()
-        sh([sys.executable, "tests/peers/spsr.py", "--data", os.path.join(work, "data"),
-            "--sizes", ",".join(SIZES), "--out", out, "--depth", "8",
-            "--metrics-cmd", f"{NKRR} metrics"])
-        open(os.path.join(out, "wall"), "w").write(f"{time.time() - t0:.1f}\n")
+        run_spsr(os.path.join(work, "data"), SIZES, out)
+    return spsr_rows(jl)
+
+
+def run_spsr(data, sizes, out):
+    """Screened Poisson (tests/peers/spsr.py, depth 8) on every DATA/NAME-SIZE.ply, scored by
+    `nkrr metrics` against DATA/NAME.obj: OUT/NAME-SIZE.obj, OUT/spsr.jsonl, and the wall time
+    in OUT/wall. Also used by scripts/hard_clouds.py."""
+    t0 = time.time()
+    sh([sys.executable, "tests/peers/spsr.py", "--data", data,
+        "--sizes", ",".join(sizes), "--out", out, "--depth", "8",
+        "--metrics-cmd", f"{NKRR} metrics"])
+    open(os.path.join(out, "wall"), "w").write(f"{time.time() - t0:.1f}\n")
+
+
+def spsr_rows(jl):
+    """spsr.jsonl's rows as the report reads them: method spsr and a times dict."""
     rows = [json.loads(x) for x in open(jl)]
     for r in rows:
         r["method"] = "spsr"

@@ -4,7 +4,8 @@
 #
 #   scripts/setup.sh apt      Debian packages (wasm toolchain, lavapipe, chromium)
 #   scripts/setup.sh wasm     wasm-bindgen-cli + trunk (pinned, from crates.io)
-#   scripts/setup.sh npm      node tools (binaryen wasm-opt, gltf-validator, playwright-core)
+#   scripts/setup.sh npm      node tools (binaryen wasm-opt, gltf-validator, playwright-core,
+#                             meshoptimizer's decoder, three.js)
 #   scripts/setup.sh python   .venv with the training requirements (PyTorch CPU), and
 #                             .venv-formats (laspy/lazrs, pye57, trimesh: fixtures, output loading)
 #   scripts/setup.sh all      everything
@@ -51,7 +52,8 @@ step_wasm() {
 }
 
 step_npm() {
-    if [ ! -x node_modules/.bin/wasm-opt ] || [ ! -d node_modules/gltf-validator ] || [ ! -d node_modules/playwright-core ]; then
+    if [ ! -x node_modules/.bin/wasm-opt ] || [ ! -d node_modules/gltf-validator ] || [ ! -d node_modules/playwright-core ] \
+        || [ ! -f node_modules/meshoptimizer/meshopt_decoder.mjs ] || [ ! -d node_modules/three ]; then
         log "npm: installing from package-lock.json"
         npm ci --no-audit --no-fund --loglevel=error
     else

@@ -76,7 +76,7 @@ export class ResultPanel {
     result.trimmedGlb = null;
     if (removed > 0) {
       try {
-        result.trimmedGlb = this.nk.mesh_file('glb', m.positions, m.normals, m.colors, result.indices, result.name, m.translation);
+        result.trimmedGlb = this.nk.mesh_file('glb', m.positions, m.normals, m.colors, result.indices, result.name, m.translation, result.stats.glb);
       } catch (e) {
         this.onError(e.message ?? String(e));
       }
@@ -106,7 +106,7 @@ export class ResultPanel {
       bytes = result.trimmedGlb;
     } else if (format !== 'glb' || result.indices !== m.indices) {
       // Written on demand from the arrays the view holds, so a trimmed mesh downloads trimmed.
-      bytes = this.nk.mesh_file(format, m.positions, m.normals, m.colors, result.indices, result.name, m.translation);
+      bytes = this.nk.mesh_file(format, m.positions, m.normals, m.colors, result.indices, result.name, m.translation, result.stats.glb);
       if (format !== 'glb') type = 'application/octet-stream';
     }
     const url = URL.createObjectURL(new Blob([bytes], { type }));

@@ -245,6 +245,8 @@ fn stats_object(
     set(&stats, "points", parsed.cloud.len() as f64);
     set(&stats, "method", settings::value_text(settings::by_key("method").expect("in the table").get(settings)));
     set(&stats, "resolution", settings.resolution as f64);
+    // The GLB's geometry ("plain", "quantized", "meshopt"): the page writes a trimmed GLB in it.
+    set(&stats, "glb", settings::value_text(settings::by_key("glb").expect("in the table").get(settings)));
     set(&stats, "vertices", report.vertices_written as f64);
     set(&stats, "triangles", report.triangles_written as f64);
     set(&stats, "watertight", mesh.is_watertight());

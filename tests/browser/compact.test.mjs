@@ -1,0 +1,108 @@
+// Meshes for web viewers (issue 17): the GLB in each geometry form (plain floats,
+// KHR_mesh_quantization, EXT_meshopt_compression) and a simplified one, reconstructed in the
+// browser through the ES module and loaded by three.js's GLTFLoader, with meshoptimizer's
+// decoder as the app serves it (dist/meshopt_decoder.mjs, never a CDN).
+import { test, before, after } from 'node:test';
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+import { serve, browser, openPage, requireDist, DIST, EVAL, ROOT } from './harness.mjs';
+
+const THREE = path.join(ROOT, 'node_modules/three');
+const PAGE = `<!doctype html><meta charset="utf-8"><link rel="icon" href="data:,"><title>three.js loads nkrr's GLBs</title>
+<script type="importmap">{ "imports": { "three": "/three/build/three.module.js" } }</script>
+<script type="module">
+  import * as THREE from 'three';
+  import { GLTFLoader } from '/three/examples/jsm/loaders/GLTFLoader.js';
+  import { MeshoptDecoder } from '/meshopt_decoder.mjs';
+  import { Reconstructor } from '/web/reconstructor.js';
+  window.nk = new Reconstructor();
+  // What three.js makes of a GLB: triangles, vertices, world bounds, attributes.
+  window.load = (bytes) => new Promise((resolve, reject) => {
+    const buf = bytes.buffer.slice(bytes.byteOffset, bytes.byteOffset + bytes.byteLength);
+    new GLTFLoader().setMeshoptDecoder(MeshoptDecoder).parse(buf, '', (gltf) => {
+      gltf.scene.updateMatrixWorld(true);
+      const box = new THREE.Box3();
+      const out = { triangles: 0, vertices: 0, normals: true, unitNormals: true };
+      gltf.scene.traverse((o) => {
+        if (!o.isMesh) return;
+        const g = o.geometry;
+        out.triangles += g.index.count / 3;
+        out.vertices += g.attributes.position.count;
+        out.normals &&= !!g.attributes.normal;
+        const n = new THREE.Vector3();
+        for (let i = 0; i < g.attributes.normal.count; i += 97) {
+          n.fromBufferAttribute(g.attributes.normal, i);
+          out.unitNormals &&= Math.abs(n.length() - 1) < 0.02;
+        }
+        box.expandByObject(o, true);
+      });
+      resolve({ ...out, min: box.min.toArray(), max: box.max.toArray() });
+    }, reject);
+  });
+  window.ready = true;
+</script>`;
+
+let srv;
+before(async () => {
+  requireDist();
+  const page = path.join(fs.mkdtempSync(path.join(os.tmpdir(), 'nkrr-three-')), 'three.html');
+  fs.writeFileSync(page, PAGE);
+  const three = (p) => path.join(THREE, p);
+  srv = await serve(DIST, {
+    '/three.html': page,
+    '/data/spot-3k.ply': path.join(EVAL, 'spot-3k.ply'),
+    '/three/build/three.module.js': three('build/three.module.js'),
+    '/three/build/three.core.js': three('build/three.core.js'),
+    '/three/examples/jsm/loaders/GLTFLoader.js': three('examples/jsm/loaders/GLTFLoader.js'),
+    '/three/examples/jsm/utils/BufferGeometryUtils.js': three('examples/jsm/utils/BufferGeometryUtils.js'),
+    '/three/examples/jsm/utils/SkeletonUtils.js': three('examples/jsm/utils/SkeletonUtils.js'),
+  });
+});
+after(() => srv?.server.close());
+
+test('three.js loads every GLB form and a simplified mesh, with the decoder the app serves', { timeout: 900_000 }, async () => {
+  const b = await browser();
+  try {
+    const { page, errors } = await openPage(b, `${srv.url}/three.html`);
+    await page.waitForFunction(() => window.ready === true, null, { timeout: 60_000 });
+    const runs = await page.evaluate(async () => {
+      const bytes = await (await fetch('/data/spot-3k.ply')).arrayBuffer();
+      const out = {};
+      const base = { method: 'network', resolution: 64 };
+      for (const [name, extra] of [['plain', { glb: 'plain' }], ['quantized', { glb: 'quantized' }], ['meshopt', { glb: 'meshopt' }]]) {
+        const r = await window.nk.reconstruct(bytes.slice(0), { ...base, ...extra });
+        out[name] = { stats: r.stats, bytes: r.glb.length, three: await window.load(r.glb) };
+      }
+      const tenth = Math.floor(out.plain.stats.triangles / 10);
+      const r = await window.nk.reconstruct(bytes.slice(0), { ...base, glb: 'meshopt', triangles: tenth });
+      out.simplified = { stats: r.stats, bytes: r.glb.length, three: await window.load(r.glb), tenth };
+      return out;
+    });
+    const plain = runs.plain;
+    const extent = Math.max(...[0, 1, 2].map((a) => plain.three.max[a] - plain.three.min[a]));
+    for (const [name, r] of Object.entries(runs)) {
+      console.log(`${name}: ${r.stats.triangles} triangles, ${r.bytes} bytes, three.js: ${JSON.stringify(r.three)}`);
+      assert.equal(r.stats.glb, name === 'simplified' ? 'meshopt' : name);
+      assert.equal(r.three.triangles, r.stats.triangles, `${name}: three.js sees the triangles written`);
+      assert.ok(r.three.normals && r.three.unitNormals, `${name}: normals`);
+      assert.equal(r.stats.watertight, true, name);
+      // The same object in the same place: bounds within a quantization step or two (the
+      // simplified mesh keeps vertices of the full one, so it can only shrink a little).
+      const tol = name === 'simplified' ? 0.02 * extent : 1e-3 * extent;
+      for (let a = 0; a < 3; a++) {
+        assert.ok(Math.abs(r.three.min[a] - plain.three.min[a]) <= tol, `${name}: min ${r.three.min} vs ${plain.three.min}`);
+        assert.ok(Math.abs(r.three.max[a] - plain.three.max[a]) <= tol, `${name}: max ${r.three.max} vs ${plain.three.max}`);
+      }
+    }
+    assert.equal(runs.meshopt.three.triangles, plain.three.triangles);
+    assert.ok(4 * runs.meshopt.bytes <= plain.bytes, `meshopt ${runs.meshopt.bytes} vs plain ${plain.bytes}`);
+    assert.ok(runs.quantized.bytes < plain.bytes * 0.6, `quantized ${runs.quantized.bytes} vs plain ${plain.bytes}`);
+    assert.ok(runs.simplified.stats.triangles <= runs.simplified.tenth, `${runs.simplified.stats.triangles} > ${runs.simplified.tenth}`);
+    assert.ok(runs.simplified.stats.notices.some((n) => n.startsWith('simplified from')), runs.simplified.stats.notices.join('; '));
+    assert.deepEqual(errors, []);
+  } finally {
+    await b.close();
+  }
+});
