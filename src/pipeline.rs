@@ -155,18 +155,38 @@ impl Engine {
     ) -> Result<Reconstruction, PipelineError> {
         let mut timings = Vec::new();
         let mut notices = Vec::new();
-        let norm = Normalization::of(cloud).map_err(PipelineError::Cloud)?;
+        Normalization::of(cloud).map_err(PipelineError::Cloud)?;
         // The preflight's plan decides how many points and inducing points fit this adapter
         // (and, in the browser, the host budget); its actions become notices. The settings stay
         // what the user asked for.
         let plan = self.memory_plan(cloud.len(), cloud.colors.is_some(), settings);
         notices.extend(plan.actions.iter().map(|a| format!("to fit in memory, nkrr will {a}")));
         let max_points = plan.n.min(settings.max_points);
-        let mut points: Vec<[f32; 3]> = cloud.positions.iter().map(|p| norm.forward(*p)).collect();
-        if points.len() > max_points {
-            notices.push(format!("the cloud has {} points; the network sees a uniform subsample of {max_points}", points.len()));
-            points = subsample(&points, max_points, 1);
+        let mut seen = if cloud.len() > max_points {
+            notices.push(format!("the cloud has {} points; the network sees a uniform subsample of {max_points}", cloud.len()));
+            subsample(&cloud.positions, max_points, 1)
+        } else {
+            cloud.positions.clone()
+        };
+        // Stray points go before the normalisation, which they would otherwise stretch (see
+        // crate::outliers); the filter scores the points the network will see.
+        if let Some(ratio) = settings.outliers {
+            let t = now();
+            let keep = crate::outliers::statistical_filter(&seen, crate::outliers::NEIGHBOURS, ratio);
+            let dropped = keep.iter().filter(|&&k| !k).count();
+            if dropped > 0 {
+                seen = seen.iter().zip(&keep).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
+                notices.push(format!(
+                    "dropped {dropped} stray points (their mean distance to their {} nearest neighbours is more than {ratio} standard deviations above the cloud's)",
+                    crate::outliers::NEIGHBOURS
+                ));
+            }
+            timings.push(("outliers", now() - t));
         }
+        let seen = PointCloud { positions: seen, origin: cloud.origin, normals: None, colors: None };
+        let norm = Normalization::of(&seen).map_err(PipelineError::Cloud)?;
+        let points: Vec<[f32; 3]> = seen.positions.iter().map(|p| norm.forward(*p)).collect();
+        drop(seen);
 
         if !progress(&Stage::Features) {
             return Err(PipelineError::Cancelled);
@@ -234,6 +254,18 @@ impl Engine {
         }
 
         let mut mesh = extraction.mesh;
+        if let Some(share) = settings.min_support {
+            let r = crate::mesh::remove_unsupported_components(&mut mesh, &points, share);
+            if r.components_removed > 0 {
+                notices.push(format!(
+                    "dropped {} of {} pieces ({} triangles) that fewer than {} % of the points are nearest to",
+                    r.components_removed,
+                    r.components,
+                    r.triangles_removed,
+                    100.0 * share
+                ));
+            }
+        }
         // Fitted and trimmed in the unit cube, against the points the network saw.
         let fit = settings.fit.then(|| {
             let t = now();

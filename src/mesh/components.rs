@@ -61,6 +61,48 @@ pub struct Removal {
     pub triangles_removed: usize,
 }
 
+/// Drops the connected components that fewer than `share` of `points` support (a point
+/// supports the component of its nearest vertex), keeping always the best-supported one: the
+/// floating pieces that the field raises where no points are (stray points, a network that
+/// never saw them) hold no surface the cloud asks for. `points` in the mesh's coordinates.
+pub fn remove_unsupported_components(mesh: &mut Mesh, points: &[[f32; 3]], share: f32) -> Removal {
+    let (comp, sizes) = triangle_components(mesh);
+    let mut r = Removal { components: sizes.len(), ..Default::default() };
+    if sizes.len() < 2 || points.is_empty() {
+        return r;
+    }
+    // Each vertex's component (through any triangle of it).
+    let n = mesh.positions.len();
+    let mut of_vertex = vec![u32::MAX; n];
+    for (t, &c) in mesh.indices.chunks_exact(3).zip(&comp) {
+        for &i in t.iter().filter(|&&i| (i as usize) < n) {
+            of_vertex[i as usize] = c;
+        }
+    }
+    let index = crate::sample::PointIndex::new(&mesh.positions);
+    let mut support = vec![0usize; sizes.len()];
+    let mut near = Vec::with_capacity(1);
+    for &p in points {
+        index.k_nearest(p, 1, &mut near);
+        if let Some(&(_, v)) = near.first() {
+            if let Some(s) = support.get_mut(of_vertex[v as usize] as usize) {
+                *s += 1;
+            }
+        }
+    }
+    let best = (0..sizes.len()).max_by_key(|&c| (support[c], sizes[c])).unwrap_or(0);
+    let need = f64::from(share) * points.len() as f64;
+    let keep: Vec<bool> = (0..sizes.len()).map(|c| c == best || support[c] as f64 >= need).collect();
+    r.components_removed = keep.iter().filter(|&&k| !k).count();
+    if r.components_removed == 0 {
+        return r;
+    }
+    let keep_triangle: Vec<bool> = mesh.indices.chunks_exact(3).zip(&comp).map(|(t, &c)| keep[c as usize] && t.iter().all(|&i| (i as usize) < n)).collect();
+    r.triangles_removed = keep_triangle.iter().filter(|&&k| !k).count();
+    super::trim::retain_triangles(mesh, &keep_triangle);
+    r
+}
+
 /// Drops the connected components with fewer than `fraction` times the largest component's
 /// triangles, and the vertices only they used (the rest keep their order). Normals and colours,
 /// when present, follow their vertices. (Triangles with an index out of range are dropped too

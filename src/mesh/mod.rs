@@ -14,7 +14,7 @@ pub mod tables;
 pub mod trim;
 mod types;
 
-pub use components::{remove_small_components, triangle_components, Removal};
+pub use components::{remove_small_components, remove_unsupported_components, triangle_components, Removal};
 #[cfg(not(target_arch = "wasm32"))]
 pub use extract::extract_gpu;
 pub use extract::{extract, extract_async, extract_gpu_async, postprocess, refine_async, ExtractStats, Extraction};
