@@ -127,3 +127,44 @@ pub fn remove_small_components(mesh: &mut Mesh, fraction: f32) -> Removal {
     super::trim::retain_triangles(mesh, &keep_triangle);
     r
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An octahedron of radius `r` around `c`.
+    fn octahedron(c: [f32; 3], r: f32, base: u32) -> (Vec<[f32; 3]>, Vec<u32>) {
+        let p = vec![[r, 0.0, 0.0], [-r, 0.0, 0.0], [0.0, r, 0.0], [0.0, -r, 0.0], [0.0, 0.0, r], [0.0, 0.0, -r]]
+            .into_iter()
+            .map(|v| [0, 1, 2].map(|a| c[a] + v[a]))
+            .collect();
+        let f = [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]];
+        (p, f.iter().flatten().map(|&i| i + base).collect())
+    }
+
+    #[test]
+    fn pieces_without_points_go_and_supported_ones_stay() {
+        let (mut positions, mut indices) = octahedron([0.0; 3], 1.0, 0);
+        let (p2, i2) = octahedron([5.0, 0.0, 0.0], 0.2, 6);
+        positions.extend(p2);
+        indices.extend(i2);
+        let mesh = Mesh { positions, normals: vec![], colors: None, indices };
+        // 1000 points on the big piece, 3 near the small one: 0.3 % < 0.5 %.
+        let mut points: Vec<[f32; 3]> = (0..1000).map(|i| [(i as f32 * 0.37).sin(), (i as f32 * 0.11).cos(), 0.0]).collect();
+        points.extend([[5.0, 0.0, 0.2]; 3]);
+        let mut m = mesh.clone();
+        let r = remove_unsupported_components(&mut m, &points, 0.005);
+        assert_eq!((r.components, r.components_removed, r.triangles_removed), (2, 1, 8));
+        assert_eq!(m.positions.len(), 6);
+        assert!(m.is_watertight());
+        // 10 points (1 %) hold it.
+        points.extend([[5.0, 0.2, 0.0]; 7]);
+        let mut m = mesh.clone();
+        assert_eq!(remove_unsupported_components(&mut m, &points, 0.005).components_removed, 0);
+        // The best-supported piece stays even when it is below the share.
+        let mut m = mesh.clone();
+        let r = remove_unsupported_components(&mut m, &[[5.0, 0.0, 0.0]], 0.9);
+        assert_eq!(r.components_removed, 1);
+        assert!(m.positions.iter().all(|p| p[0] > 4.0));
+    }
+}
