@@ -362,6 +362,21 @@ pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String>
         "nkrr-no-z" => Settings { tune_z: false, ..nkrr },
         "nkrr-euclidean" => Settings { euclidean: true, ..nkrr },
         "nkrr-paper-pairs" => Settings { near_k: None, extra_pairs: None, ..nkrr },
+        // The paper's method as it stands in the paper: its tuning on every pair, its pairs,
+        // the level set as it is, every point and every piece kept.
+        "nkrr-paper" => Settings {
+            tune_pairs: None,
+            lr: 0.1,
+            steps: 100,
+            select_by: crate::settings::SelectBy::Training,
+            prior_mean: crate::settings::PriorMean::Zero,
+            near_k: None,
+            extra_pairs: None,
+            fit: false,
+            outliers: None,
+            min_support: None,
+            ..nkrr
+        },
         "nkrr-select-training" => Settings { select_by: crate::settings::SelectBy::Training, ..nkrr },
         "nkrr-prior-mean" => Settings { prior_mean: crate::settings::PriorMean::Network, ..nkrr },
         "nkrr-keep-outliers" => Settings { outliers: None, min_support: None, ..nkrr },
@@ -370,7 +385,7 @@ pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String>
             Some(m) => Settings { m, ..nkrr },
             None => {
                 return Err(format!(
-                    "unknown method '{s}' (expected network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-keep-outliers or nkrr-m<N>)"
+                    "unknown method '{s}' (expected network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-paper, nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-keep-outliers or nkrr-m<N>)"
                 ))
             }
         },

@@ -1,7 +1,8 @@
 // Meshes for web viewers (issue 17): the GLB in each geometry form (plain floats,
-// KHR_mesh_quantization, EXT_meshopt_compression) and a simplified one, reconstructed in the
-// browser through the ES module and loaded by three.js's GLTFLoader, with meshoptimizer's
-// decoder as the app serves it (dist/meshopt_decoder.mjs, never a CDN).
+// KHR_mesh_quantization, EXT_meshopt_compression) and a simplified one, reconstructed from a 10k
+// eval cloud in the browser through the ES module, checked by the Khronos validator and loaded by
+// three.js's GLTFLoader with meshoptimizer's decoder as the app serves it
+// (dist/meshopt_decoder.mjs, never a CDN).
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
@@ -52,7 +53,7 @@ before(async () => {
   const three = (p) => path.join(THREE, p);
   srv = await serve(DIST, {
     '/three.html': page,
-    '/data/spot-3k.ply': path.join(EVAL, 'spot-3k.ply'),
+    '/data/spot-10k.ply': path.join(EVAL, 'spot-10k.ply'),
     '/three/build/three.module.js': three('build/three.module.js'),
     '/three/build/three.core.js': three('build/three.core.js'),
     '/three/examples/jsm/loaders/GLTFLoader.js': three('examples/jsm/loaders/GLTFLoader.js'),
@@ -68,21 +69,25 @@ test('three.js loads every GLB form and a simplified mesh, with the decoder the 
     const { page, errors } = await openPage(b, `${srv.url}/three.html`);
     await page.waitForFunction(() => window.ready === true, null, { timeout: 60_000 });
     const runs = await page.evaluate(async () => {
-      const bytes = await (await fetch('/data/spot-3k.ply')).arrayBuffer();
+      const bytes = await (await fetch('/data/spot-10k.ply')).arrayBuffer();
       const out = {};
       const base = { method: 'network', resolution: 64 };
       for (const [name, extra] of [['plain', { glb: 'plain' }], ['quantized', { glb: 'quantized' }], ['meshopt', { glb: 'meshopt' }]]) {
         const r = await window.nk.reconstruct(bytes.slice(0), { ...base, ...extra });
-        out[name] = { stats: r.stats, bytes: r.glb.length, three: await window.load(r.glb) };
+        out[name] = { stats: r.stats, bytes: r.glb.length, three: await window.load(r.glb), glb: Array.from(r.glb) };
       }
       const tenth = Math.floor(out.plain.stats.triangles / 10);
       const r = await window.nk.reconstruct(bytes.slice(0), { ...base, glb: 'meshopt', triangles: tenth });
-      out.simplified = { stats: r.stats, bytes: r.glb.length, three: await window.load(r.glb), tenth };
+      out.simplified = { stats: r.stats, bytes: r.glb.length, three: await window.load(r.glb), tenth, glb: Array.from(r.glb) };
       return out;
     });
     const plain = runs.plain;
     const extent = Math.max(...[0, 1, 2].map((a) => plain.three.max[a] - plain.three.min[a]));
+    const validator = await import('gltf-validator');
     for (const [name, r] of Object.entries(runs)) {
+      const report = await validator.validateBytes(new Uint8Array(r.glb), { format: 'glb', maxIssues: 0, writeTimestamp: false });
+      assert.equal(report.issues.numErrors, 0, `${name}: ${JSON.stringify(report.issues.messages)}`);
+      assert.equal(report.issues.numWarnings, 0, `${name}: ${JSON.stringify(report.issues.messages)}`);
       console.log(`${name}: ${r.stats.triangles} triangles, ${r.bytes} bytes, three.js: ${JSON.stringify(r.three)}`);
       assert.equal(r.stats.glb, name === 'simplified' ? 'meshopt' : name);
       assert.equal(r.three.triangles, r.stats.triangles, `${name}: three.js sees the triangles written`);
