@@ -172,12 +172,12 @@ impl Engine {
         // crate::outliers); the filter scores the points the network will see.
         if let Some(ratio) = settings.outliers {
             let t = now();
-            let keep = crate::outliers::statistical_filter(&seen, crate::outliers::NEIGHBOURS, ratio);
+            let keep = crate::outliers::local_density_filter(&seen, crate::outliers::NEIGHBOURS, ratio);
             let dropped = keep.iter().filter(|&&k| !k).count();
             if dropped > 0 {
                 seen = seen.iter().zip(&keep).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
                 notices.push(format!(
-                    "dropped {dropped} stray points (their mean distance to their {} nearest neighbours is more than {ratio} standard deviations above the cloud's)",
+                    "dropped {dropped} stray points (their mean distance to their {} nearest neighbours is more than {ratio} times that of the points around them)",
                     crate::outliers::NEIGHBOURS
                 ));
             }
