@@ -13,7 +13,7 @@ const CACHE = 'nkrr-app';
 const SHELL = [
   './', './index.html', './style.css', './nkrr.js', './nkrr_bg.wasm', './manifest.webmanifest',
   './web/app.js', './web/reconstructor.js', './web/worker.js', './web/settings.js', './web/result.js',
-  './web/util.js', './web/test-hooks.js', './web/icon.svg', './meshopt_decoder.mjs',
+  './web/util.js', './web/test-hooks.js', './web/icon.svg', './meshopt_decoder.mjs', './meshopt_decoder.cjs',
 ];
 
 self.addEventListener('install', (event) => {

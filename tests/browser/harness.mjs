@@ -14,7 +14,7 @@ export const EVAL = path.join(ROOT, 'tests/data/eval');
 export const ARTIFACTS = path.join(ROOT, 'artifacts');
 
 const TYPES = {
-  '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/javascript', '.wasm': 'application/wasm',
+  '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/javascript', '.cjs': 'text/javascript', '.wasm': 'application/wasm',
   '.css': 'text/css', '.ply': 'application/octet-stream', '.glb': 'model/gltf-binary', '.json': 'application/json',
   '.webmanifest': 'application/manifest+json', '.svg': 'image/svg+xml',
 };
