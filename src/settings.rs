@@ -404,6 +404,7 @@ pub static TABLE: &[Setting] = &[
         default: Value::Num(2.0),
         can_be_off: true,
         off_flag: Some("--keep-outliers"),
+        advanced: true,
         get: |s| from_opt(s.outliers),
         set: |s, v| s.outliers = opt_f32(v),
         ..BASE
@@ -477,6 +478,7 @@ pub static TABLE: &[Setting] = &[
         default: Value::Off,
         can_be_off: true,
         presets: &[(0.0005, "0.05 %"), (0.002, "0.2 %"), (0.01, "1 %")],
+        advanced: true,
         get: |s| from_opt(s.max_error),
         set: |s, v| s.max_error = opt_f32(v),
         ..BASE
