@@ -43,8 +43,29 @@ pub fn input_dim(settings: &Settings, c_dim: usize) -> usize {
     if settings.euclidean {
         FOURIER_DIM
     } else {
-        c_dim
+        c_dim + if settings.position { 3 } else { 0 }
     }
+}
+
+/// What the regression sees at `points` whose network features are `features`: the features,
+/// the features followed by the position ([`Settings::position`]: the features are bilinear on
+/// 64² plane cells, so within a cell they cannot place the surface finer than the decoder does
+/// with q; each coordinate gets its own tuned length-scale like every feature), or, for the
+/// ablation, Fourier-encoded coordinates alone.
+fn regression_input(euclidean: bool, position: bool, points: &[[f32; 3]], features: Vec<f32>) -> Vec<f32> {
+    if euclidean {
+        return fourier_encode(points);
+    }
+    if !position || points.is_empty() {
+        return features;
+    }
+    let c = features.len() / points.len();
+    let mut out = Vec::with_capacity(points.len() * (c + 3));
+    for (f, p) in features.chunks_exact(c).zip(points) {
+        out.extend_from_slice(f);
+        out.extend_from_slice(p);
+    }
+    out
 }
 
 /// The fitted regression g(x) = Σ_j β_j k(x, z_j), evaluated where it was tuned.
@@ -53,6 +74,8 @@ pub struct KrrField {
     beta: Vec<f64>,
     /// Fourier-encoded coordinates instead of the network's features (the ablation).
     euclidean: bool,
+    /// The position follows the features in the regression's input.
+    position: bool,
     /// g regressed the residual of the network's logit: the field is l(q) + g(q).
     network_mean: bool,
     /// The GPU predictor when the regression was tuned on the GPU; else the f64 reference.
@@ -63,7 +86,7 @@ impl KrrField {
     /// The field at `points`, whose network features and logits are `features` and `logits`:
     /// g, or l + g when g regressed the logit's residual.
     pub async fn predict(&self, points: &[[f32; 3]], features: Vec<f32>, logits: &[f32]) -> Result<Vec<f32>, String> {
-        let x = if self.euclidean { fourier_encode(points) } else { features };
+        let x = regression_input(self.euclidean, self.position, points, features);
         let (beta, z, log_s) = (&self.beta, &self.params.z, &self.params.log_s);
         let mut g = match &self.gpu {
             Some(p) => p.predict(beta, z, log_s, &x).await.map_err(|e| e.to_string())?,
@@ -177,7 +200,7 @@ pub async fn training_pairs(
     let (features, logits) = net.decode(planes, &all).await?;
     let clip = settings.label_clip.unwrap_or(f32::INFINITY);
     let y = targets(&logits, points.len(), clip, settings.prior_mean);
-    let x = if settings.euclidean { fourier_encode(&all) } else { features };
+    let x = regression_input(settings.euclidean, settings.position, &all, features);
     let problem = krr::Problem::from_f32(&x, &y, input_dim(settings, net.config().c_dim))?;
     Ok(TrainingPairs { problem, inputs: points.len() })
 }
@@ -363,6 +386,7 @@ pub async fn fit(
         beta,
         params: result.params,
         euclidean: settings.euclidean,
+        position: settings.position,
         network_mean: settings.prior_mean == PriorMean::Network,
         gpu: predictor,
     };
@@ -371,7 +395,25 @@ pub async fn fit(
 
 #[cfg(test)]
 mod tests {
-    use super::{split_rows, targets, KrrField};
+
+    #[test]
+    fn the_position_follows_each_points_features() {
+        let points = [[0.5, -0.25, 0.125], [1.0, 2.0, 3.0]];
+        let features = vec![1.0, 2.0, 3.0, 4.0];
+        assert_eq!(regression_input(false, false, &points, features.clone()), features);
+        assert_eq!(
+            regression_input(false, true, &points, features.clone()),
+            vec![1.0, 2.0, 0.5, -0.25, 0.125, 3.0, 4.0, 1.0, 2.0, 3.0]
+        );
+        assert_eq!(regression_input(true, true, &points, features).len(), 2 * FOURIER_DIM);
+        let mut s = Settings::default();
+        assert_eq!(input_dim(&s, 32), 32);
+        s.position = true;
+        assert_eq!(input_dim(&s, 32), 35);
+    }
+
+    use super::{input_dim, regression_input, split_rows, targets, KrrField, FOURIER_DIM};
+    use crate::settings::Settings;
     use crate::settings::PriorMean;
 
     #[test]
@@ -387,7 +429,7 @@ mod tests {
     #[test]
     fn the_field_adds_the_logit_when_the_network_is_the_mean() {
         let params = crate::krr::Params { log_s: vec![0.0, 0.0], z: vec![0.0, 0.0, 1.0, 0.5] };
-        let field = |network_mean| KrrField { params: params.clone(), beta: vec![0.7, -0.3], euclidean: false, network_mean, gpu: None };
+        let field = |network_mean| KrrField { params: params.clone(), beta: vec![0.7, -0.3], euclidean: false, position: false, network_mean, gpu: None };
         let points = [[0.0f32; 3]; 3];
         let features = vec![0.0f32, 0.0, 1.0, 0.5, 0.2, -0.4];
         let logits = [1.5f32, -2.0, 0.25];

@@ -92,6 +92,7 @@ pub struct Settings {
     pub extra_pairs: Option<usize>,
     pub label_clip: Option<f32>,
     pub euclidean: bool,
+    pub position: bool,
     pub krr_backend: KrrBackend,
     pub trim: Option<f32>,
     pub triangles: Option<usize>,
@@ -138,6 +139,7 @@ impl Default for Settings {
             extra_pairs: None,
             label_clip: None,
             euclidean: false,
+            position: false,
             krr_backend: KrrBackend::Auto,
             trim: None,
             triangles: None,
@@ -632,6 +634,19 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Bool(s.tune_z),
         set: |s, v| s.tune_z = flag(v),
+        ..BASE
+    },
+    Setting {
+        key: "position",
+        flag: "--position",
+        label: "Position in the kernel",
+        help: "the kernel sees each query's position beside the network's features, each coordinate with its own tuned length-scale (beyond the paper)",
+        kind: Kind::Switch,
+        default: Value::Bool(false),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Bool(s.position),
+        set: |s, v| s.position = flag(v),
         ..BASE
     },
     Setting {
