@@ -255,7 +255,7 @@ impl Engine {
 
         let mut mesh = extraction.mesh;
         if let Some(share) = settings.min_support {
-            let r = crate::mesh::remove_unsupported_components(&mut mesh, &points, share);
+            let r = crate::mesh::remove_unsupported_components(&mut mesh, &points, share as f32);
             if r.components_removed > 0 {
                 notices.push(format!(
                     "dropped {} of {} pieces ({} triangles) that fewer than {} % of the points are nearest to",

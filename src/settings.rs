@@ -75,7 +75,7 @@ pub struct Settings {
     pub method: Method,
     pub resolution: u32,
     pub remove_small_components: Option<f32>,
-    pub min_support: Option<f32>,
+    pub min_support: Option<f64>,
     pub outliers: Option<f32>,
     pub max_points: usize,
     pub m: usize,
@@ -421,8 +421,12 @@ pub static TABLE: &[Setting] = &[
         can_be_off: true,
         off_flag: Some("--keep-pieces"),
         advanced: true,
-        get: |s| from_opt(s.min_support),
-        set: |s, v| s.min_support = opt_f32(v),
+        // f64: 0.005 has no exact f32, and a setting must read back as its default.
+        get: |s| s.min_support.map_or(Value::Off, Value::Num),
+        set: |s, v| s.min_support = match v {
+            Value::Num(x) => Some(x),
+            _ => None,
+        },
         ..BASE
     },
     Setting {
