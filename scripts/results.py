@@ -499,6 +499,13 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w(f"nkrr eval target/results/data --sizes 3k --methods network,nkrr --shapes "
       f"{','.join(RERUN_SHAPES)}   # the re-run")
     w("/usr/bin/time -v nkrr reconstruct scale-N.ply -o out.glb --method network|nkrr")
+    w("nkrr eval target/results/data --sizes 500,3k,10k --methods "
+      + ",".join(m for m, _, _ in LEVERS) + " --keep-meshes   # the levers")
+    w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(m for m, _, _ in LEVERS2))
+    w("nkrr eval target/results/data --sizes 500,3k --methods nkrr-paper --keep-meshes")
+    w("scripts/hard_clouds.py --spsr   # the harder clouds and screened Poisson on them")
+    w("nkrr eval target/results/hard --sizes " + ",".join(HARD_KINDS)
+      + " --methods network,nkrr,network-keep-outliers,nkrr-keep-outliers")
     w("```\n")
     walls = [main.get("wall_s"), abl.get("wall_s") if abl else None, rerun.get("wall_s")]
     w(f"Wall time of the runs here: main eval {fmt(walls[0], 0)} s, ablations {fmt(walls[1], 0)} s, "
