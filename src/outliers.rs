@@ -24,6 +24,26 @@ pub const NEIGHBOURS: usize = 20;
 /// The neighbourhood whose median score a point's is held against.
 pub const AROUND: usize = 100;
 
+/// `points` without the stray ones ([`local_density_filter`] with [`NEIGHBOURS`]), and how
+/// many went.
+pub fn drop_stray(points: Vec<[f32; 3]>, ratio: f32) -> (Vec<[f32; 3]>, usize) {
+    let keep = local_density_filter(&points, NEIGHBOURS, ratio);
+    let dropped = keep.iter().filter(|&&k| !k).count();
+    if dropped == 0 {
+        return (points, 0);
+    }
+    (points.into_iter().zip(keep).filter(|(_, k)| *k).map(|(p, _)| p).collect(), dropped)
+}
+
+/// What the reconstruction tells the user when `dropped` points went (nothing when none did).
+pub fn notice(dropped: usize, ratio: f32) -> Option<String> {
+    (dropped > 0).then(|| {
+        format!(
+            "dropped {dropped} stray points (their mean distance to their {NEIGHBOURS} nearest neighbours is more than {ratio} times that of the points around them)"
+        )
+    })
+}
+
 /// Which of `points` the filter keeps (`true`): a point goes when its mean distance to its `k`
 /// nearest neighbours is more than `ratio` times the median of the same over its [`AROUND`]
 /// nearest. Clouds of at most `k` points are kept whole. Points must be finite.

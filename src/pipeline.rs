@@ -172,21 +172,14 @@ impl Engine {
         // crate::outliers); the filter scores the points the network will see.
         if let Some(ratio) = settings.outliers {
             let t = now();
-            let keep = crate::outliers::local_density_filter(&seen, crate::outliers::NEIGHBOURS, ratio);
-            let dropped = keep.iter().filter(|&&k| !k).count();
-            if dropped > 0 {
-                seen = seen.iter().zip(&keep).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
-                notices.push(format!(
-                    "dropped {dropped} stray points (their mean distance to their {} nearest neighbours is more than {ratio} times that of the points around them)",
-                    crate::outliers::NEIGHBOURS
-                ));
-            }
+            let dropped;
+            (seen, dropped) = crate::outliers::drop_stray(seen, ratio);
+            notices.extend(crate::outliers::notice(dropped, ratio));
             timings.push(("outliers", now() - t));
         }
         let seen = PointCloud { positions: seen, origin: cloud.origin, normals: None, colors: None };
         let norm = Normalization::of(&seen).map_err(PipelineError::Cloud)?;
         let points: Vec<[f32; 3]> = seen.positions.iter().map(|p| norm.forward(*p)).collect();
-        drop(seen);
 
         if !progress(&Stage::Features) {
             return Err(PipelineError::Cancelled);
@@ -256,15 +249,7 @@ impl Engine {
         let mut mesh = extraction.mesh;
         if let Some(share) = settings.min_support {
             let r = crate::mesh::remove_unsupported_components(&mut mesh, &points, share as f32);
-            if r.components_removed > 0 {
-                notices.push(format!(
-                    "dropped {} of {} pieces ({} triangles) that fewer than {} % of the points are nearest to",
-                    r.components_removed,
-                    r.components,
-                    r.triangles_removed,
-                    100.0 * share
-                ));
-            }
+            notices.extend(r.unsupported_notice(share));
         }
         // Fitted and trimmed in the unit cube, against the points the network saw.
         let fit = settings.fit.then(|| {
@@ -277,10 +262,7 @@ impl Engine {
             let t = now();
             let r = crate::mesh::trim(&mut mesh, &points, factor);
             timings.push(("trim", now() - t));
-            notices.push(format!(
-                "trimmed {} triangles farther than {factor} x the mean point spacing from the input",
-                r.triangles_removed
-            ));
+            notices.push(r.notice(factor));
             r
         });
         // After the trim, so that the simplifier keeps the trimmed border where it is; before
@@ -290,13 +272,7 @@ impl Engine {
             let t = now();
             let r = crate::mesh::simplify::simplify(&mut mesh, &target);
             timings.push(("simplify", now() - t));
-            notices.push(format!(
-                "simplified from {} to {} triangles (largest deviation {:.2} % of the object's size){}",
-                r.triangles_before,
-                r.triangles_after,
-                100.0 * r.error,
-                if r.kept_closed { "; some vertices were held in place to keep the surface closed" } else { "" }
-            ));
+            notices.push(r.notice());
             r
         });
         for p in &mut mesh.positions {

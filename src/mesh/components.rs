@@ -61,6 +61,22 @@ pub struct Removal {
     pub triangles_removed: usize,
 }
 
+impl Removal {
+    /// What the reconstruction tells the user after [`remove_unsupported_components`] with
+    /// `share` (nothing when no piece went).
+    pub fn unsupported_notice(&self, share: f64) -> Option<String> {
+        (self.components_removed > 0).then(|| {
+            format!(
+                "dropped {} of {} pieces ({} triangles) that fewer than {} % of the points are nearest to",
+                self.components_removed,
+                self.components,
+                self.triangles_removed,
+                100.0 * share
+            )
+        })
+    }
+}
+
 /// Drops the connected components that fewer than `share` of `points` support (a point
 /// supports the component of its nearest vertex), keeping always the best-supported one: the
 /// floating pieces that the field raises where no points are (stray points, a network that

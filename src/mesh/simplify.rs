@@ -33,6 +33,19 @@ pub struct SimplifyReport {
     pub kept_closed: bool,
 }
 
+impl SimplifyReport {
+    /// What the reconstruction tells the user.
+    pub fn notice(&self) -> String {
+        format!(
+            "simplified from {} to {} triangles (largest deviation {:.2} % of the object's size){}",
+            self.triangles_before,
+            self.triangles_after,
+            100.0 * self.error,
+            if self.kept_closed { "; some vertices were held in place to keep the surface closed" } else { "" }
+        )
+    }
+}
+
 /// Simplifies `mesh` in place towards `target` (see the module documentation). A target with
 /// neither field set, or one the mesh already meets, leaves it as it is.
 pub fn simplify(mesh: &mut Mesh, target: &Target) -> SimplifyReport {

@@ -20,6 +20,13 @@ pub struct TrimReport {
     pub vertices_removed: usize,
 }
 
+impl TrimReport {
+    /// What the reconstruction tells the user after a trim by `factor`.
+    pub fn notice(&self, factor: f32) -> String {
+        format!("trimmed {} triangles farther than {factor} x the mean point spacing from the input", self.triangles_removed)
+    }
+}
+
 /// Drops every triangle whose centroid is farther than `factor` × the mean nearest-neighbour
 /// spacing of `points` from the nearest of them, then the vertices no triangle uses any more
 /// (the rest keep their order; normals and colours follow). `mesh` and `points` must be in the
