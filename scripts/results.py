@@ -129,10 +129,10 @@ HARD_KINDS = ["noise", "outliers", "falloff", "onesided"]
 
 
 def levers_phase(work):
-    """Every lever's variant at 500 / 3k / 10k (WORK/levers.json, meshes kept) and the paper's
+    """Every lever's variant at 500 / 3k / 10k (WORK/levers.json) and the paper's
     method whole at 500 and 3k (WORK/paper.json, meshes kept: the before of the renders)."""
     levers = eval_phase(work, "levers", ["--sizes", ",".join(SIZES), "--methods",
-                                         ",".join(m for m, _, _ in LEVERS), "--keep-meshes"])
+                                         ",".join(m for m, _, _ in LEVERS)])
     more = eval_phase(work, "levers2", ["--sizes", ",".join(SIZES), "--methods", ",".join(m for m, _, _ in LEVERS2)])
     levers = {"runs": levers["runs"] + more["runs"], "wall_s": (levers["wall_s"] or 0) + (more["wall_s"] or 0)}
     paper = eval_phase(work, "paper", ["--sizes", "500,3k", "--methods", "nkrr-paper", "--keep-meshes"])
@@ -500,7 +500,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
       f"{','.join(RERUN_SHAPES)}   # the re-run")
     w("/usr/bin/time -v nkrr reconstruct scale-N.ply -o out.glb --method network|nkrr")
     w("nkrr eval target/results/data --sizes 500,3k,10k --methods "
-      + ",".join(m for m, _, _ in LEVERS) + " --keep-meshes   # the levers")
+      + ",".join(m for m, _, _ in LEVERS) + "   # the levers")
     w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(m for m, _, _ in LEVERS2))
     w("nkrr eval target/results/data --sizes 500,3k --methods nkrr-paper --keep-meshes")
     w("scripts/hard_clouds.py --spsr   # the harder clouds and screened Poisson on them")
