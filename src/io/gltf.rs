@@ -314,39 +314,12 @@ pub fn write_glb_with_report(
             offset += len;
         }
     }
-    let (pos_acc, nrm_acc) = (0, 1);
-    let col_acc = has_colors.then_some(2);
-    let idx_acc = if has_colors { 3 } else { 2 };
 
     let mut j = String::with_capacity(2048);
-    j.push_str("{\"asset\":{\"version\":\"2.0\",\"generator\":");
-    push_json_string(&mut j, concat!("nkrr ", env!("CARGO_PKG_VERSION")));
-    j.push_str("},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],\"nodes\":[{\"mesh\":0");
-    if let Some(name) = &opts.name {
-        j.push_str(",\"name\":");
-        push_json_string(&mut j, name);
-    }
-    if let Some(t) = opts.translation {
-        let _ =
-            write!(j, ",\"translation\":[{},{},{}]", JsonF64(t[0]), JsonF64(t[1]), JsonF64(t[2]));
-    }
-    j.push_str("}],\"meshes\":[{");
-    if let Some(name) = &opts.name {
-        j.push_str("\"name\":");
-        push_json_string(&mut j, name);
-        j.push(',');
-    }
-    let _ =
-        write!(j, "\"primitives\":[{{\"attributes\":{{\"POSITION\":{pos_acc},\"NORMAL\":{nrm_acc}");
-    if let Some(c) = col_acc {
-        let _ = write!(j, ",\"COLOR_0\":{c}");
-    }
-    let _ = write!(j, "}},\"indices\":{idx_acc},\"material\":0,\"mode\":{MODE_TRIANGLES}}}]}}],");
-    j.push_str("\"materials\":[{\"name\":\"nkrr default\",\"pbrMetallicRoughness\":{");
-    if !has_colors {
-        j.push_str("\"baseColorFactor\":[0.8,0.8,0.8,1],");
-    }
-    j.push_str("\"metallicFactor\":0,\"roughnessFactor\":0.6},\"doubleSided\":false}],");
+    let transform = opts.translation.map_or(String::new(), |t| {
+        format!(",\"translation\":[{},{},{}]", JsonF64(t[0]), JsonF64(t[1]), JsonF64(t[2]))
+    });
+    push_head(&mut j, &[], opts.name.as_deref(), &transform, has_colors);
     let _ = write!(j, "\"buffers\":[{{\"byteLength\":{bin_len}}}],\"bufferViews\":[");
     for (k, (off, len, target)) in views.iter().enumerate() {
         if k > 0 {
@@ -396,17 +369,7 @@ pub fn write_glb_with_report(
     if total > limit {
         return Err(GltfError::TooLarge { what: "GLB file", needed: total, limit });
     }
-    let mut out: Vec<u8> = Vec::new();
-    if out.try_reserve_exact(total as usize).is_err() {
-        return Err(GltfError::TooLarge { what: "GLB file (memory)", needed: total, limit: 0 });
-    }
-    for w in [GLB_MAGIC, GLB_VERSION, total as u32, j.len() as u32, CHUNK_JSON] {
-        out.extend_from_slice(&w.to_le_bytes());
-    }
-    out.extend_from_slice(j.as_bytes());
-    for w in [bin_len as u32, CHUNK_BIN] {
-        out.extend_from_slice(&w.to_le_bytes());
-    }
+    let mut out = glb_start(&j, bin_len, total)?;
     for p in &mesh.positions {
         for x in p {
             out.extend_from_slice(&x.to_le_bytes());
@@ -499,7 +462,7 @@ fn write_compact(
     // u16 indices when every index fits below the u16 maximum (which glTF reserves).
     let short = nv < usize::from(u16::MAX);
     let (idx_type, idx_size) = if short { (UNSIGNED_SHORT, 2) } else { (UNSIGNED_INT, 4) };
-    let mut idx: Vec<u8> = if short {
+    let idx: Vec<u8> = if short {
         indices.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect()
     } else {
         indices.iter().flat_map(|&i| i.to_le_bytes()).collect()
@@ -519,12 +482,13 @@ fn write_compact(
     }
     let mut views = Vec::new();
     let mut add = |raw: Vec<u8>, stride: Option<usize>, target, mode, filter| {
+        let raw_len = raw.len();
         let stored = match (meshopt, mode) {
-            (false, _) => raw.clone(),
+            (false, _) => raw,
             (true, "TRIANGLES") => crate::io::meshopt_codec::encode_triangles(&indices, nv),
             (true, _) => crate::io::meshopt_codec::encode_vertices(&raw, stride.unwrap_or(4)),
         };
-        views.push(View { raw_len: raw.len(), stride, target, mode, filter, stored });
+        views.push(View { raw_len, stride, target, mode, filter, stored });
     };
     add(pos, Some(8), ARRAY_BUFFER, "ATTRIBUTES", None);
     add(nrm, Some(4), ARRAY_BUFFER, "ATTRIBUTES", meshopt.then_some("OCTAHEDRAL"));
@@ -532,53 +496,25 @@ fn write_compact(
     if let Some(c) = col {
         add(c, Some(4), ARRAY_BUFFER, "ATTRIBUTES", None);
     }
-    while idx.len() % 4 != 0 {
-        idx.push(0);
-    }
-    let idx_raw_len = indices.len() * idx_size;
     add(idx, None, ELEMENT_ARRAY_BUFFER, "TRIANGLES", None);
-    let last = views.len() - 1;
-    views[last].raw_len = idx_raw_len;
 
     let pad4 = |x: usize| x.div_ceil(4) * 4;
     let raw_total: usize = views.iter().map(|v| pad4(v.raw_len)).sum();
     let bin_len: usize = views.iter().map(|v| pad4(v.stored.len())).sum();
 
     let mut j = String::with_capacity(4096);
-    j.push_str("{\"asset\":{\"version\":\"2.0\",\"generator\":");
-    push_json_string(&mut j, concat!("nkrr ", env!("CARGO_PKG_VERSION")));
-    j.push_str("},");
-    if meshopt {
-        j.push_str("\"extensionsUsed\":[\"KHR_mesh_quantization\",\"EXT_meshopt_compression\"],\"extensionsRequired\":[\"KHR_mesh_quantization\",\"EXT_meshopt_compression\"],");
-    } else {
-        j.push_str("\"extensionsUsed\":[\"KHR_mesh_quantization\"],\"extensionsRequired\":[\"KHR_mesh_quantization\"],");
-    }
-    j.push_str("\"scene\":0,\"scenes\":[{\"nodes\":[0]}],\"nodes\":[{\"mesh\":0");
-    if let Some(name) = &opts.name {
-        j.push_str(",\"name\":");
-        push_json_string(&mut j, name);
-    }
+    let extensions: &[&str] = if meshopt { &["KHR_mesh_quantization", "EXT_meshopt_compression"] } else { &["KHR_mesh_quantization"] };
     let t = opts.translation.unwrap_or([0.0; 3]);
     let origin = [0, 1, 2].map(|a| t[a] + lo[a]);
-    let _ = write!(j, ",\"translation\":[{},{},{}]", JsonF64(origin[0]), JsonF64(origin[1]), JsonF64(origin[2]));
-    let _ = write!(j, ",\"scale\":[{0},{0},{0}]", JsonF64(step));
-    j.push_str("}],\"meshes\":[{");
-    if let Some(name) = &opts.name {
-        j.push_str("\"name\":");
-        push_json_string(&mut j, name);
-        j.push(',');
-    }
-    j.push_str("\"primitives\":[{\"attributes\":{\"POSITION\":0,\"NORMAL\":1");
-    if has_colors {
-        j.push_str(",\"COLOR_0\":2");
-    }
+    let transform = format!(
+        ",\"translation\":[{},{},{}],\"scale\":[{3},{3},{3}]",
+        JsonF64(origin[0]),
+        JsonF64(origin[1]),
+        JsonF64(origin[2]),
+        JsonF64(step)
+    );
+    push_head(&mut j, extensions, opts.name.as_deref(), &transform, has_colors);
     let idx_acc = if has_colors { 3 } else { 2 };
-    let _ = write!(j, "}},\"indices\":{idx_acc},\"material\":0,\"mode\":{MODE_TRIANGLES}}}]}}],");
-    j.push_str("\"materials\":[{\"name\":\"nkrr default\",\"pbrMetallicRoughness\":{");
-    if !has_colors {
-        j.push_str("\"baseColorFactor\":[0.8,0.8,0.8,1],");
-    }
-    j.push_str("\"metallicFactor\":0,\"roughnessFactor\":0.6},\"doubleSided\":false}],");
     if meshopt {
         let _ = write!(j, "\"buffers\":[{{\"byteLength\":{bin_len}}},{{\"byteLength\":{raw_total},\"extensions\":{{\"EXT_meshopt_compression\":{{\"fallback\":true}}}}}}],");
     } else {
@@ -628,25 +564,75 @@ fn write_compact(
         j.push(' ');
     }
 
-    let total = 12 + 8 + j.len() + 8 + bin_len;
-    if total as u64 > u64::from(u32::MAX) {
-        return Err(GltfError::TooLarge { what: "GLB file", needed: total as u64, limit: u64::from(u32::MAX) });
+    let total = 12 + 8 + j.len() as u64 + 8 + bin_len as u64;
+    let limit = u64::from(u32::MAX).min(usize::MAX as u64);
+    if total > limit {
+        return Err(GltfError::TooLarge { what: "GLB file", needed: total, limit });
     }
-    let mut out: Vec<u8> = Vec::with_capacity(total);
-    for w in [GLB_MAGIC, GLB_VERSION, total as u32, j.len() as u32, CHUNK_JSON] {
-        out.extend_from_slice(&w.to_le_bytes());
-    }
-    out.extend_from_slice(j.as_bytes());
-    for w in [bin_len as u32, CHUNK_BIN] {
-        out.extend_from_slice(&w.to_le_bytes());
-    }
+    let mut out = glb_start(&j, bin_len as u64, total)?;
     for v in &views {
         out.extend_from_slice(&v.stored);
         out.resize(pad4(out.len()), 0);
     }
-    debug_assert_eq!(out.len(), total);
-    let report = GlbReport { vertices_written: nv, bytes: total, ..report };
+    debug_assert_eq!(out.len() as u64, total);
+    let report = GlbReport { vertices_written: nv, bytes: out.len(), ..report };
     Ok((out, report))
+}
+
+/// The JSON of both forms up to the buffers: the asset, the `extensions` (used and required),
+/// the scene with its one node (named `name`; `transform`: its translation and scale members,
+/// written) and one mesh whose primitive reads POSITION, NORMAL, COLOR_0 (when `has_colors`)
+/// and the indices from accessors 0, 1, 2 and the next, and the default material.
+fn push_head(j: &mut String, extensions: &[&str], name: Option<&str>, transform: &str, has_colors: bool) {
+    j.push_str("{\"asset\":{\"version\":\"2.0\",\"generator\":");
+    push_json_string(j, concat!("nkrr ", env!("CARGO_PKG_VERSION")));
+    j.push_str("},");
+    if !extensions.is_empty() {
+        let list = extensions.iter().map(|e| format!("\"{e}\"")).collect::<Vec<_>>().join(",");
+        let _ = write!(j, "\"extensionsUsed\":[{list}],\"extensionsRequired\":[{list}],");
+    }
+    j.push_str("\"scene\":0,\"scenes\":[{\"nodes\":[0]}],\"nodes\":[{\"mesh\":0");
+    if let Some(name) = name {
+        j.push_str(",\"name\":");
+        push_json_string(j, name);
+    }
+    j.push_str(transform);
+    j.push_str("}],\"meshes\":[{");
+    if let Some(name) = name {
+        j.push_str("\"name\":");
+        push_json_string(j, name);
+        j.push(',');
+    }
+    j.push_str("\"primitives\":[{\"attributes\":{\"POSITION\":0,\"NORMAL\":1");
+    if has_colors {
+        j.push_str(",\"COLOR_0\":2");
+    }
+    let idx_acc = if has_colors { 3 } else { 2 };
+    let _ = write!(j, "}},\"indices\":{idx_acc},\"material\":0,\"mode\":{MODE_TRIANGLES}}}]}}],");
+    j.push_str("\"materials\":[{\"name\":\"nkrr default\",\"pbrMetallicRoughness\":{");
+    if !has_colors {
+        // glTF multiplies vertex colours by the base colour: white (the default) keeps them.
+        j.push_str("\"baseColorFactor\":[0.8,0.8,0.8,1],");
+    }
+    j.push_str("\"metallicFactor\":0,\"roughnessFactor\":0.6},\"doubleSided\":false}],");
+}
+
+/// A GLB of `total` bytes begun: the header, the JSON chunk (`json`, padded to 4 bytes) and the
+/// BIN chunk's header for `bin_len` bytes, in a buffer that can hold the rest; an error rather
+/// than an abort when the memory is not there.
+fn glb_start(json: &str, bin_len: u64, total: u64) -> Result<Vec<u8>, GltfError> {
+    let mut out: Vec<u8> = Vec::new();
+    if out.try_reserve_exact(total as usize).is_err() {
+        return Err(GltfError::TooLarge { what: "GLB file (memory)", needed: total, limit: 0 });
+    }
+    for w in [GLB_MAGIC, GLB_VERSION, total as u32, json.len() as u32, CHUNK_JSON] {
+        out.extend_from_slice(&w.to_le_bytes());
+    }
+    out.extend_from_slice(json.as_bytes());
+    for w in [bin_len as u32, CHUNK_BIN] {
+        out.extend_from_slice(&w.to_le_bytes());
+    }
+    Ok(out)
 }
 
 /// An `f32` as a JSON number that parses (as `f64` or `f32`) back to exactly this value: the

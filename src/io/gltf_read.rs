@@ -147,7 +147,7 @@ fn chunks(bytes: &[u8]) -> Result<(serde_json::Value, &[u8]), GlbReadError> {
 pub fn expand(bytes: &[u8]) -> Result<Option<Vec<u8>>, GlbReadError> {
     use serde_json::{json, Value};
     let err = |s: String| GlbReadError(s);
-    if bytes.len() < 20 || !bytes[..20.min(bytes.len())].starts_with(b"glTF") {
+    if bytes.len() < 20 || !bytes.starts_with(b"glTF") {
         return Ok(None); // not ours to judge: the gltf crate says what is wrong
     }
     let (mut doc, bin) = chunks(bytes)?;
