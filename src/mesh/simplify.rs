@@ -7,7 +7,7 @@
 //! locked in place, so trimming's edges stay where the points end.
 
 use super::trim::retain_triangles;
-use super::types::Mesh;
+use super::types::{is_closed, unpaired_edges, Mesh};
 
 /// What [`simplify`] aims for; unset fields do not limit it.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -131,22 +131,9 @@ pub fn simplify(mesh: &mut Mesh, target: &Target) -> SimplifyReport {
     report
 }
 
-/// Whether triangles `indices` over `n` vertices form a closed, consistently oriented surface
-/// ([`Mesh::is_watertight`]).
-fn is_closed(indices: &[u32], n: usize) -> bool {
-    Mesh { positions: vec![[0.0; 3]; n], indices: indices.to_vec(), ..Default::default() }.is_watertight()
-}
-
-/// The vertices of edges that are not shared by exactly one triangle each way.
+/// The vertices of the edges that keep `indices` from being closed ([`unpaired_edges`]).
 fn pinched(indices: &[u32]) -> Vec<u32> {
-    let mut edges: Vec<(u32, u32)> = indices.chunks_exact(3).flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])]).collect();
-    edges.sort_unstable();
-    let mut out: Vec<u32> = edges
-        .iter()
-        .enumerate()
-        .filter(|&(i, e)| edges.get(i + 1) == Some(e) || (i > 0 && edges[i - 1] == *e) || edges.binary_search(&(e.1, e.0)).is_err())
-        .flat_map(|(_, e)| [e.0, e.1])
-        .collect();
+    let mut out: Vec<u32> = unpaired_edges(indices).into_iter().flat_map(|(a, b)| [a, b]).collect();
     out.sort_unstable();
     out.dedup();
     out

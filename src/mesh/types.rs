@@ -61,24 +61,33 @@ impl Mesh {
     /// Edges are compared by vertex index, so an unwelded mesh (duplicated positions) is not
     /// watertight. Non-manifold vertices (two cones touching at a tip) are not detected.
     pub fn is_watertight(&self) -> bool {
-        if self.indices.is_empty() || !self.indices.len().is_multiple_of(3) {
-            return false;
-        }
-        let n = self.positions.len();
-        let mut edges: Vec<(u32, u32)> = Vec::with_capacity(self.indices.len());
-        for t in self.indices.chunks_exact(3) {
-            let (a, b, c) = (t[0], t[1], t[2]);
-            if a == b || b == c || a == c || [a, b, c].iter().any(|&i| i as usize >= n) {
-                return false;
-            }
-            edges.extend_from_slice(&[(a, b), (b, c), (c, a)]);
-        }
-        edges.sort_unstable();
-        if edges.windows(2).any(|w| w[0] == w[1]) {
-            return false; // a directed edge used twice: inconsistent orientation or > 2 faces
-        }
-        edges.iter().all(|&(a, b)| edges.binary_search(&(b, a)).is_ok())
+        is_closed(&self.indices, self.positions.len())
     }
+}
+
+/// [`Mesh::is_watertight`] for triangles `indices` over `n` vertices.
+pub(crate) fn is_closed(indices: &[u32], n: usize) -> bool {
+    if indices.is_empty() || !indices.len().is_multiple_of(3) {
+        return false;
+    }
+    if indices.chunks_exact(3).any(|t| t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || t.iter().any(|&i| i as usize >= n)) {
+        return false;
+    }
+    unpaired_edges(indices).is_empty()
+}
+
+/// The directed edges (a → b of some triangle) that do not pair up as a closed, consistently
+/// oriented surface needs: used twice (inconsistent orientation, or more than two faces on the
+/// edge), or without the reverse (a border). Sorted.
+pub(crate) fn unpaired_edges(indices: &[u32]) -> Vec<(u32, u32)> {
+    let mut edges: Vec<(u32, u32)> = indices.chunks_exact(3).flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])]).collect();
+    edges.sort_unstable();
+    edges
+        .iter()
+        .enumerate()
+        .filter(|&(i, e)| edges.get(i + 1) == Some(e) || (i > 0 && edges[i - 1] == *e) || edges.binary_search(&(e.1, e.0)).is_err())
+        .map(|(_, e)| *e)
+        .collect()
 }
 
 /// Area-weighted vertex normals: each vertex gets the normalised sum of the (unnormalised)
