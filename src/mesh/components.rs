@@ -83,9 +83,8 @@ impl Removal {
 /// never saw them) hold no surface the cloud asks for. `points` in the mesh's coordinates.
 pub fn remove_unsupported_components(mesh: &mut Mesh, points: &[[f32; 3]], share: f32) -> Removal {
     let (comp, sizes) = triangle_components(mesh);
-    let mut r = Removal { components: sizes.len(), ..Default::default() };
     if sizes.len() < 2 || points.is_empty() {
-        return r;
+        return Removal { components: sizes.len(), ..Default::default() };
     }
     // Each vertex's component (through any triangle of it).
     let n = mesh.positions.len();
@@ -109,14 +108,7 @@ pub fn remove_unsupported_components(mesh: &mut Mesh, points: &[[f32; 3]], share
     let best = (0..sizes.len()).max_by_key(|&c| (support[c], sizes[c])).unwrap_or(0);
     let need = f64::from(share) * points.len() as f64;
     let keep: Vec<bool> = (0..sizes.len()).map(|c| c == best || support[c] as f64 >= need).collect();
-    r.components_removed = keep.iter().filter(|&&k| !k).count();
-    if r.components_removed == 0 {
-        return r;
-    }
-    let keep_triangle: Vec<bool> = mesh.indices.chunks_exact(3).zip(&comp).map(|(t, &c)| keep[c as usize] && t.iter().all(|&i| (i as usize) < n)).collect();
-    r.triangles_removed = keep_triangle.iter().filter(|&&k| !k).count();
-    super::trim::retain_triangles(mesh, &keep_triangle);
-    r
+    remove_components(mesh, &comp, &keep)
 }
 
 /// Drops the connected components with fewer than `fraction` times the largest component's
@@ -127,7 +119,14 @@ pub fn remove_small_components(mesh: &mut Mesh, fraction: f32) -> Removal {
     let (comp, sizes) = triangle_components(mesh);
     let largest = sizes.iter().copied().max().unwrap_or(0);
     let keep: Vec<bool> = sizes.iter().map(|&s| (s as f64) >= fraction as f64 * largest as f64).collect();
-    let mut r = Removal { components: sizes.len(), ..Default::default() };
+    remove_components(mesh, &comp, &keep)
+}
+
+/// Drops the triangles of the components `c` (`comp`: each triangle's) with `keep[c]` false,
+/// and the vertices only they used (the rest keep their order; normals and colours follow).
+/// Triangles with an index out of range are dropped too when anything is removed.
+fn remove_components(mesh: &mut Mesh, comp: &[u32], keep: &[bool]) -> Removal {
+    let mut r = Removal { components: keep.len(), ..Default::default() };
     r.components_removed = keep.iter().filter(|&&k| !k).count();
     if r.components_removed == 0 {
         return r;
@@ -136,7 +135,7 @@ pub fn remove_small_components(mesh: &mut Mesh, fraction: f32) -> Removal {
     let keep_triangle: Vec<bool> = mesh
         .indices
         .chunks_exact(3)
-        .zip(&comp)
+        .zip(comp)
         .map(|(t, &c)| keep[c as usize] && t.iter().all(|&i| (i as usize) < n))
         .collect();
     r.triangles_removed = keep_triangle.iter().filter(|&&k| !k).count();
