@@ -14,14 +14,21 @@ pub const DEFAULT_K: usize = 50;
 /// uniform grid searched in growing rings, stopping once no unvisited cell can hold a closer
 /// point. Points must be finite.
 pub fn kth_neighbour_distance(points: &[[f32; 3]], k: usize) -> Vec<f32> {
+    neighbour_distances(points, &[k]).pop().unwrap_or_default()
+}
+
+/// [`kth_neighbour_distance`] for each of the ranks `ks` (each clamped to n - 1), from one
+/// search for the largest.
+pub fn neighbour_distances(points: &[[f32; 3]], ks: &[usize]) -> Vec<Vec<f32>> {
     let n = points.len();
     if n < 2 {
-        return vec![0.0; n];
+        return vec![vec![0.0; n]; ks.len()];
     }
-    let k = k.clamp(1, n - 1);
+    let ks: Vec<usize> = ks.iter().map(|&k| k.clamp(1, n - 1)).collect();
+    let k = ks.iter().copied().max().unwrap_or(1);
     let grid = Grid::new(points);
     let mut best: Vec<f32> = Vec::with_capacity(k + 1); // squared distances, sorted ascending
-    let mut out = Vec::with_capacity(n);
+    let mut out = vec![Vec::with_capacity(n); ks.len()];
     for (i, p) in points.iter().enumerate() {
         best.clear();
         let c = grid.cell_of(p);
@@ -46,7 +53,9 @@ pub fn kth_neighbour_distance(points: &[[f32; 3]], k: usize) -> Vec<f32> {
             }
             ring += 1;
         }
-        out.push(best.get(k - 1).copied().unwrap_or(0.0).sqrt());
+        for (o, &kr) in out.iter_mut().zip(&ks) {
+            o.push(best.get(kr - 1).copied().unwrap_or(0.0).sqrt());
+        }
     }
     out
 }
@@ -87,8 +96,10 @@ pub const MAX_PER_POINT: usize = 16;
 /// and carry little about where it is; the near ones pin the field's slope at the surface.
 /// Seeded, so a reconstruction repeats.
 pub fn upsample(points: &[[f32; 3]], offsets: &Offsets, seed: u64) -> Vec<[f32; 3]> {
-    let far = kth_neighbour_distance(points, offsets.k);
-    let near = offsets.near_k.map(|k| kth_neighbour_distance(points, k));
+    // One neighbour search for both scales.
+    let mut ranks = neighbour_distances(points, &[Some(offsets.k), offsets.near_k].into_iter().flatten().collect::<Vec<_>>());
+    let near = offsets.near_k.and_then(|_| ranks.pop());
+    let far = ranks.pop().unwrap_or_default();
     let mut rng = SplitMix64(seed);
     let mut out = Vec::with_capacity(points.len() * offsets.per_point);
     for (i, p) in points.iter().enumerate() {
