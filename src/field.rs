@@ -395,6 +395,8 @@ pub async fn fit(
 
 #[cfg(test)]
 mod tests {
+    use super::{input_dim, regression_input, split_rows, targets, KrrField, FOURIER_DIM};
+    use crate::settings::{PriorMean, Settings};
 
     #[test]
     fn the_position_follows_each_points_features() {
@@ -412,9 +414,6 @@ mod tests {
         assert_eq!(input_dim(&s, 32), 35);
     }
 
-    use super::{input_dim, regression_input, split_rows, targets, KrrField, FOURIER_DIM};
-    use crate::settings::Settings;
-    use crate::settings::PriorMean;
 
     #[test]
     fn targets_with_and_without_the_network_as_prior_mean() {

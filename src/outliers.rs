@@ -54,19 +54,21 @@ pub fn local_density_filter(points: &[[f32; 3]], k: usize, ratio: f32) -> Vec<bo
     }
     let index = PointIndex::new(points);
     let mut near = Vec::with_capacity(AROUND + 1);
-    let mut around: Vec<Vec<u32>> = Vec::with_capacity(n);
+    // Each point's `m` nearest others, one after the other (there are n - 1 > k of them).
+    let m = AROUND.min(n - 1);
+    let mut around: Vec<u32> = Vec::with_capacity(n * m);
     let mean: Vec<f32> = points
         .iter()
         .map(|&p| {
             // The point itself comes back first, at distance 0.
             index.k_nearest(p, AROUND.max(k) + 1, &mut near);
-            around.push(near.iter().skip(1).take(AROUND).map(|&(_, j)| j).collect());
+            around.extend(near.iter().skip(1).take(m).map(|&(_, j)| j));
             near.iter().skip(1).take(k).map(|&(d2, _)| d2.sqrt()).sum::<f32>() / k as f32
         })
         .collect();
-    let mut theirs = Vec::with_capacity(AROUND);
+    let mut theirs = Vec::with_capacity(m);
     around
-        .iter()
+        .chunks_exact(m)
         .zip(&mean)
         .map(|(nb, &d)| {
             theirs.clear();

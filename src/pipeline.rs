@@ -155,7 +155,7 @@ impl Engine {
     ) -> Result<Reconstruction, PipelineError> {
         let mut timings = Vec::new();
         let mut notices = Vec::new();
-        Normalization::of(cloud).map_err(PipelineError::Cloud)?;
+        Normalization::of(cloud).map_err(PipelineError::Cloud)?; // too few points, or flat: refused first
         // The preflight's plan decides how many points and inducing points fit this adapter
         // (and, in the browser, the host budget); its actions become notices. The settings stay
         // what the user asked for.
