@@ -234,8 +234,10 @@ test('cancel during CPU-bound nkrr tuning replaces the deaf worker; the next run
     const { page, errors } = await readyPage(b);
     await page.waitForFunction(() => document.body.dataset.worker === 'ready', null, { timeout: 90_000 });
     await page.selectOption('#method', 'nkrr');
-    // m = 400: each tuning step takes seconds on the CPU, during which the worker hears nothing.
-    await page.fill('#m', '400');
+    // m = 800: each tuning step takes well over the 5 s grace on the CPU (about m² × 4000
+    // pairs), during which the worker hears nothing. (At m = 400 a step took 4.4 s on an idle
+    // machine, under the grace, and the worker was rightly kept.)
+    await page.fill('#m', '800');
     await page.fill('#steps', '100');
     await page.selectOption('#resolution', '64');
     await page.click('#run');
