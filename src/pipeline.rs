@@ -53,20 +53,15 @@ impl fmt::Display for PipelineError {
             PipelineError::Net(e) => write!(f, "the network prior could not be loaded: {e}"),
             PipelineError::Mesh(e) => write!(f, "mesh extraction failed: {e}"),
             PipelineError::Krr(e) => write!(f, "the kernel regression failed: {e}"),
-            PipelineError::NoSurface { evaluations, field_max, method } => write!(
-                f,
-                "no surface found: the field ({}) is at or below 0, outside, at all {evaluations} points evaluated \
+            PipelineError::NoSurface { evaluations, field_max, method } => {
+                let (who, hint) = match method {
+                    Method::Nkrr => ("NKRR", "; the network alone (--method network) may still find one"),
+                    Method::Network => ("the network", ""),
+                };
+                write!(f, "no surface found: the field ({who}) is at or below 0, outside, at all {evaluations} points evaluated \
                  (largest value {field_max:.3}), so nothing is inside anywhere. The prior sees the cloud as no \
-                 closed object: a flat patch, a sparse or scattered cloud, or a scene larger than one object{}",
-                match method {
-                    Method::Nkrr => "NKRR",
-                    Method::Network => "the network",
-                },
-                match method {
-                    Method::Nkrr => "; the network alone (--method network) may still find one",
-                    Method::Network => "",
-                }
-            ),
+                 closed object: a flat patch, a sparse or scattered cloud, or a scene larger than one object{hint}")
+            }
             PipelineError::Cancelled => write!(f, "cancelled"),
         }
     }
@@ -134,9 +129,12 @@ pub struct Engine {
 impl Engine {
     /// Uploads the built-in network prior to `gpu`.
     pub async fn new(gpu: Gpu) -> Result<Engine, PipelineError> {
-        let weights = Weights::prior().map_err(PipelineError::Net)?;
-        let net = GpuNet::new(&gpu, &weights).await?;
-        Ok(Engine { gpu, net })
+        Engine::with_weights(gpu, &Weights::prior().map_err(PipelineError::Net)?).await
+    }
+
+    /// Uploads `weights`, a prior in the same format (a retrained one, `nkrr --weights`), to `gpu`.
+    pub async fn with_weights(gpu: Gpu, weights: &Weights) -> Result<Engine, PipelineError> {
+        Ok(Engine { net: GpuNet::new(&gpu, weights).await?, gpu })
     }
 
     /// The memory each stage will take for a cloud of `points` points on this engine's

@@ -42,11 +42,13 @@ def stack_shapes(shapes):
     return out
 
 
-def gen_chunk(i, cache=CACHE):
+def gen_chunk(i, cache=CACHE, kind=1):
+    """Chunk i of training stream `kind` (1: the first prior's shapes, 3: the second stream with
+    the new families; shapes.STREAMS). One cache folder holds one stream."""
     p = chunk_path(i, cache)
     if p.exists():
         return False
-    shapes = [make_shape(i * CHUNK + j, kind=1) for j in range(CHUNK)]
+    shapes = [make_shape(i * CHUNK + j, kind=kind) for j in range(CHUNK)]
     _save_npz(p, stack_shapes(shapes))
     return True
 
@@ -96,8 +98,9 @@ class Pool:
 class InlineGenerator:
     """Generates the next missing chunk one shape per call (from inside the training loop)."""
 
-    def __init__(self, cache=CACHE, limit_chunks=100000):
+    def __init__(self, cache=CACHE, limit_chunks=100000, kind=1):
         self.cache = Path(cache)
+        self.kind = kind
         self.limit = limit_chunks
         self.cur = None
         self.buf = []
@@ -110,7 +113,7 @@ class InlineGenerator:
             if self.cur is None:
                 return False
         j = len(self.buf)
-        self.buf.append(make_shape(self.cur * CHUNK + j, kind=1))
+        self.buf.append(make_shape(self.cur * CHUNK + j, kind=self.kind))
         if len(self.buf) == CHUNK:
             p = chunk_path(self.cur, self.cache)
             if not p.exists():
@@ -132,11 +135,50 @@ def normalise(cloud, *others):
     return [(cloud - c) * s] + [(o - c) * s for o in others]
 
 
-def make_sample(shape, rng, n_pts, sigma, n_q=2048, frac_uni=0.5, augment=True):
+class Scan:
+    """How a sample's cloud is degraded beyond noise: the probability of each degradation per
+    sample (issue 14 items 6 and 7; all 0 is the first prior's recipe). Each mimics a failure of
+    real scans that the eval's harder set (scripts/hard_clouds.py) also has."""
+
+    def __init__(self, falloff=0.0, outliers=0.0, onesided=0.0, falloff_max=60.0, outliers_max=0.1):
+        self.falloff, self.outliers, self.onesided = falloff, outliers, onesided
+        self.falloff_max, self.outliers_max = falloff_max, outliers_max
+
+
+def _draw_points(shape, rng, n_pts, scan):
     surf = shape["surf"]
-    idx = rng.choice(len(surf), n_pts, replace=n_pts > len(surf))
-    pts = surf[idx].astype(np.float32)
+    logw = np.zeros(len(surf))
+    if scan.onesided and rng.random() < scan.onesided:
+        # seen from one side: points whose normal faces away from the view are rarely sampled
+        # (not never: the scanner grazes them)
+        v = rng.normal(size=3)
+        v /= np.linalg.norm(v)
+        logw += np.where(shape["normals"].astype(np.float32) @ v > -0.1, 0.0, -4.0)
+    if scan.falloff and rng.random() < scan.falloff:
+        # density falls by up to `falloff_max`x along a random direction, as with a scanner's range
+        d = rng.normal(size=3)
+        t = surf.astype(np.float32) @ (d / np.linalg.norm(d))
+        t = (t - t.min()) / max(float(np.ptp(t)), 1e-6)
+        logw -= t * rng.uniform(0, np.log(scan.falloff_max))
+    if not logw.any():
+        return surf[rng.choice(len(surf), n_pts, replace=n_pts > len(surf))].astype(np.float32)
+    # weighted draw without replacement (Gumbel top-k: keys log w + Gumbel noise)
+    keys = logw + rng.gumbel(size=len(surf))
+    n = min(n_pts, len(surf))
+    idx = np.argpartition(-keys, n - 1)[:n]
+    return surf[idx].astype(np.float32)
+
+
+def make_sample(shape, rng, n_pts, sigma, n_q=2048, frac_uni=0.5, augment=True, scan=None):
+    pts = _draw_points(shape, rng, n_pts, scan or Scan())
     pts += rng.normal(size=pts.shape).astype(np.float32) * sigma
+    if scan is not None and scan.outliers and rng.random() < scan.outliers:
+        # stray points (flying pixels, reflections): a share of the cloud replaced by points
+        # uniform in its box, a little enlarged
+        k = int(round(len(pts) * rng.uniform(0, scan.outliers_max)))
+        lo, hi = pts.min(0), pts.max(0)
+        pad = 0.05 * (hi - lo)
+        pts[rng.choice(len(pts), k, replace=False)] = rng.uniform(lo - pad, hi + pad, (k, 3))
     nu = int(round(n_q * frac_uni))
     iu = rng.integers(0, len(shape["quni"]), nu)
     inr = rng.integers(0, len(shape["qnear"]), n_q - nu)
@@ -149,32 +191,43 @@ def make_sample(shape, rng, n_pts, sigma, n_q=2048, frac_uni=0.5, augment=True):
     return pts, q, occ
 
 
-def make_batch(pool, rng, B, n_pts=None, n_q=2048, noise_max=0.01, pts_range=(500, 10000)):
+def make_batch(pool, rng, B, n_pts=None, n_q=2048, noise_max=0.01, pts_range=(500, 10000), scan=None):
     if n_pts is None:
         lo, hi = np.log(pts_range[0]), np.log(pts_range[1])
         n_pts = int(round(np.exp(rng.uniform(lo, hi))))
     P, Q, Y = [], [], []
     for _ in range(B):
         s = pool.get(int(rng.integers(len(pool))))
-        p, q, y = make_sample(s, rng, n_pts, float(rng.uniform(0, noise_max)), n_q)
+        p, q, y = make_sample(s, rng, n_pts, float(rng.uniform(0, noise_max)), n_q, scan=scan)
         P.append(p), Q.append(q), Y.append(y)
     return np.stack(P), np.stack(Q), np.stack(Y)
 
 
 # ----------------------------------------------------------------------------- held-out set
 
-def heldout_set(n=32, n_pts=3000, sigma=0.005, n_q=10000, cache=CACHE):
-    """Fixed held-out shapes (kind=2 seeds): input clouds + uniform labelled queries for IoU."""
-    path = Path(cache) / f"heldout_{n}.npz"
+def heldout_set(n=32, n_pts=3000, sigma=0.005, n_q=10000, cache=CACHE, kind=2, scan=None, name=None):
+    """Fixed held-out shapes (kind=2 seeds): input clouds + uniform labelled queries for IoU.
+    With `scan` (every degradation it names applied, probabilities taken as 1) or kind 4 (the
+    second stream's new families), a named variant for comparing priors (training/compare.py)."""
+    path = Path(cache) / (f"heldout_{n}.npz" if name is None else f"heldout_{name}_{n}.npz")
     if path.exists():
         z = np.load(path)
         return {k: z[k] for k in z.files}
     rng = np.random.default_rng(12345)
     P, Q, Y, F = [], [], [], []
     for i in range(n):
-        s = make_shape(i, kind=2)
-        idx = rng.choice(len(s["surf"]), n_pts, replace=False)
-        pts = s["surf"][idx].astype(np.float32) + rng.normal(size=(n_pts, 3)).astype(np.float32) * sigma
+        s = make_shape(i, kind=kind)
+        if scan is None:
+            idx = rng.choice(len(s["surf"]), n_pts, replace=False)
+            pts = s["surf"][idx].astype(np.float32)
+        else:
+            pts = _draw_points(s, rng, n_pts, scan)
+        pts += rng.normal(size=(n_pts, 3)).astype(np.float32) * sigma
+        if scan is not None and scan.outliers:
+            k = int(round(n_pts * scan.outliers_max))
+            lo, hi = pts.min(0), pts.max(0)
+            pad = 0.05 * (hi - lo)
+            pts[rng.choice(n_pts, k, replace=False)] = rng.uniform(lo - pad, hi + pad, (k, 3))
         iu = rng.choice(len(s["quni"]), n_q, replace=False)
         q = s["quni"][iu].astype(np.float32)
         y = s["occ_uni"][iu]

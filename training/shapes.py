@@ -88,7 +88,34 @@ def sd_torus(p, R, r):
     return _len2(qx, p[:, 1]) - r
 
 
+def sd_lathe(p, ys, rs):
+    """Solid of revolution about local y: the polygon (0, y0), (r0, y0), ..., (rK, yK), (0, yK)
+    in the (radius, y) half-plane, as an exact 2D polygon distance with a crossing-number sign.
+    Vases, bottles, teapot bodies and lamp bases are of this kind (issue 14, item 6)."""
+    rho = _len2(p[:, 0], p[:, 2])
+    y = p[:, 1]
+    vx = np.concatenate([[0.0], rs, [0.0]]).astype(F)
+    vy = np.concatenate([[ys[0]], ys, [ys[-1]]]).astype(F)
+    d2 = np.full(len(p), np.inf, F)
+    inside = np.zeros(len(p), bool)
+    # the closing edge lies on the axis: it bounds nothing in 3D, so it is left out
+    for i in range(len(vx) - 1):
+        ax, ay, bx, by = vx[i], vy[i], vx[i + 1], vy[i + 1]
+        ex, ey = bx - ax, by - ay
+        wx, wy = rho - ax, y - ay
+        t = np.clip((wx * ex + wy * ey) / max(ex * ex + ey * ey, 1e-12), 0, 1)
+        dx, dy = wx - ex * t, wy - ey * t
+        d2 = np.minimum(d2, dx * dx + dy * dy)
+        # crossing number: edges that straddle y, crossed to the right of rho
+        if ey != 0:
+            straddle = (y >= min(ay, by)) & (y < max(ay, by))
+            xc = ax + (y - ay) * ex / ey
+            inside ^= straddle & (rho < xc)
+    return np.where(inside, -1.0, 1.0).astype(F) * np.sqrt(d2)
+
+
 PRIMS = {
+    "lathe": sd_lathe,
     "box": sd_box, "roundbox": sd_roundbox, "sphere": sd_sphere, "ellipsoid": sd_ellipsoid,
     "cylinder": sd_cylinder, "capsule": sd_capsule, "cone": sd_cone, "torus": sd_torus,
 }
@@ -462,6 +489,129 @@ def fam_blob(rng):
     return ops
 
 
+# ----------------------------------------------------------------------------- families of the
+# second training stream (kind 3, issue 14 item 6): what the eval failures ask for.
+
+def fam_lathe(rng):
+    """Surfaces of revolution: vases, bottles, cups (hollow, thin walls), teapot bodies with a
+    handle and a spout."""
+    k = int(rng.integers(4, 10))
+    H = _u(rng, 0.3, 0.5)
+    ys = np.sort(rng.uniform(-H, H, k))
+    ys[0], ys[-1] = -H, H
+    rs = np.clip(np.cumsum(rng.normal(0, 0.06, k)) + _u(rng, 0.12, 0.3), 0.03, 0.45)
+    ops = [("u", Prim("lathe", (ys, rs)))]
+    if rng.random() < 0.35:  # hollow, open at the top: a cup or vase with a thin wall
+        t = _u(rng, 0.012, 0.04)
+        ys_in = ys.copy()
+        ys_in[0] = -H + t
+        ys_in[-1] = H + 0.2
+        ops.append(("d", Prim("lathe", (ys_in, np.maximum(rs - t, 0.005)))))
+    rmax = float(rs.max())
+    if rng.random() < 0.4:  # handle: a torus standing beside the body
+        Rh = _u(rng, 0.08, 0.2)
+        y = _u(rng, -H * 0.3, H * 0.4)
+        ops.append(("u", Prim("torus", (Rh, _u(rng, 0.015, 0.035)), (rmax * 0.85 + Rh * 0.5, y, 0),
+                              axis_rot(2))))
+    if rng.random() < 0.3:  # spout: a tilted frustum from the other side
+        a = _u(rng, 0.3, 1.0)
+        d = np.array([-math.cos(a), math.sin(a), 0.0])
+        L = _u(rng, 0.12, 0.3)
+        base = np.array([-rmax * 0.7, _u(rng, -H * 0.5, 0.0), 0.0])
+        ops.append(("u", Prim("cone", (L / 2, _u(rng, 0.04, 0.08), _u(rng, 0.015, 0.04)),
+                              base + d * L / 2, _frame_y_to(d))))
+    return ops
+
+
+def fam_tube(rng):
+    """Tubes: bent pipes, handles, wires and branches, as chains of capsules (round joints)."""
+    ops = []
+    n_tubes = int(rng.integers(1, 4))
+    for ti in range(n_tubes):
+        r = _u(rng, 0.012, 0.06)
+        p = rng.uniform(-0.2, 0.2, 3) if ti else np.zeros(3)
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        for _ in range(int(rng.integers(2, 9))):
+            L = _u(rng, 0.08, 0.3)
+            q = p + d * L
+            u = (q - p) / L
+            ops.append(("u", Prim("capsule", (r, L / 2), (p + q) / 2, _frame_y_to(u))))
+            p = q
+            d = d + rng.normal(size=3) * _u(rng, 0.2, 0.9)
+            d /= np.linalg.norm(d)
+    if rng.random() < 0.3:  # a body the tubes come out of
+        ops.append(("s", Prim("ellipsoid", ([_u(rng, 0.06, 0.2), _u(rng, 0.06, 0.2), _u(rng, 0.06, 0.2)],),
+                              (0, 0, 0), rot_matrix(rng, "full")), _u(rng, 0.01, 0.05)))
+    return ops
+
+
+def fam_flaps(rng):
+    """A body with thin flaps: ears, fins, wings, leaves (a few voxels thick)."""
+    body = np.array([_u(rng, 0.12, 0.35), _u(rng, 0.1, 0.3), _u(rng, 0.1, 0.3)])
+    ops = [("u", Prim("ellipsoid", (list(body),), (0, 0, 0), rot_matrix(rng, "yaw")))]
+    for _ in range(int(rng.integers(1, 5))):
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        at = u * body * _u(rng, 0.7, 1.0)
+        thick = _u(rng, 0.01, 0.022)
+        if rng.random() < 0.6:  # an ear or leaf: a flat ellipsoid reaching outwards
+            a, c = _u(rng, 0.08, 0.22), _u(rng, 0.05, 0.15)
+            R = _frame_y_to(u) @ rot_matrix(rng, "yaw")
+            ops.append(("s", Prim("ellipsoid", ([c, a, thick],), at + u * a * 0.6, R), _u(rng, 0.01, 0.03)))
+        else:  # a fin or wing: a thin rounded plate
+            a, c = _u(rng, 0.08, 0.25), _u(rng, 0.05, 0.2)
+            R = _frame_y_to(u) @ rot_matrix(rng, "yaw")
+            ops.append(("s", Prim("roundbox", ([c, a, thick], thick * 0.9), at + u * a * 0.5, R),
+                        _u(rng, 0.005, 0.02)))
+    return ops
+
+
+def _yaw45(axis):
+    c = s = math.sqrt(0.5)
+    if axis == 1:
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]], F)
+    if axis == 0:
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]], F)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], F)
+
+
+def fam_cad(rng):
+    """Machined parts: blocks with chamfered edges, holes, pockets, bosses and a curved cut
+    (fandisk-like)."""
+    b = np.array([_u(rng, 0.15, 0.45), _u(rng, 0.08, 0.4), _u(rng, 0.15, 0.45)])
+    ops = [("u", Prim("box", (list(b),)))]
+    for ax in range(3):  # chamfer the four edges along this axis
+        if rng.random() < 0.55:
+            i, j = [k for k in range(3) if k != ax]
+            c = _u(rng, 0.1, 0.6) * min(b[i], b[j])
+            h = (b[i] + b[j] - c) / math.sqrt(2)
+            ext = [h, h, h]
+            ext[ax] = b[ax] + 1
+            ops.append(("i", Prim("box", (ext,), (0, 0, 0), _yaw45(ax))))
+    if rng.random() < 0.5:  # a curved cut across a corner
+        R0 = _u(rng, 0.3, 0.9)
+        ctr = np.sign(rng.normal(size=3)) * (b + R0 * _u(rng, 0.6, 0.95))
+        ctr[int(rng.integers(3))] = 0
+        ops.append(("d", Prim("cylinder", (R0, 2.0), ctr, axis_rot(int(rng.integers(3))))))
+    for _ in range(int(rng.integers(0, 4))):  # through holes
+        ax = int(rng.integers(3))
+        t = rng.uniform(-0.6, 0.6, 3) * b
+        ops.append(("d", Prim("cylinder", (_u(rng, 0.02, 0.6) * float(min(b)), 2.0), t, axis_rot(ax))))
+    if rng.random() < 0.4:  # a pocket in the top face
+        w = rng.uniform(0.2, 0.6, 3) * b
+        ops.append(("d", Prim("box", (list(w),), (0, b[1], 0))))
+    if rng.random() < 0.4:  # a boss on the top face
+        rb = _u(rng, 0.2, 0.5) * float(min(b[0], b[2]))
+        hb = _u(rng, 0.03, 0.15)
+        ops.append(("u", Prim("cylinder", (rb, hb), (0, b[1] + hb * 0.9, 0))))
+    return ops
+
+
+FAMILIES_V2 = [("lathe", fam_lathe, 0.12), ("tube", fam_tube, 0.10), ("flaps", fam_flaps, 0.10),
+               ("cad", fam_cad, 0.12)]
+
+
 FAMILIES = [
     ("blob", fam_blob, 0.30),
     ("csg", fam_random_csg, 0.32), ("chair", fam_chair, 0.18), ("table", fam_table, 0.16),
@@ -469,10 +619,11 @@ FAMILIES = [
 ]
 
 
-def random_program(rng):
-    w = np.array([f[2] for f in FAMILIES])
-    i = rng.choice(len(FAMILIES), p=w / w.sum())
-    name, fn, _ = FAMILIES[i]
+def random_program(rng, families=None):
+    families = FAMILIES if families is None else families
+    w = np.array([f[2] for f in families])
+    i = rng.choice(len(families), p=w / w.sum())
+    name, fn, _ = families[i]
     sh = Shape(fn(rng), name)
     furniture = name in ("chair", "table", "lamp", "sofa")
     amp = 0.2 if furniture else 0.4
@@ -510,10 +661,24 @@ class Degenerate(Exception):
     pass
 
 
-def build(seed, kind=1, grid=128, n_surf=30000, n_uni=32000, n_near=32000, near_sigmas=(0.01, 0.05)):
+# Seed spaces: kind 1 trains and kind 2 holds out the first prior's recipe (kept as it was, so
+# its held-out IoU stays comparable); kind 3 trains and kind 4 holds out the second stream
+# (issue 14 item 6): the new families beside the old ones, and a third near-surface band at
+# 0.005, where the mesh is decided.
+STREAMS = {1: ("v1", (0.01, 0.05)), 2: ("v1", (0.01, 0.05)),
+           3: ("v2", (0.005, 0.01, 0.05)), 4: ("v2-only", (0.005, 0.01, 0.05))}
+
+
+def stream_families(kind):
+    name = STREAMS[kind][0]
+    return {"v1": FAMILIES, "v2": FAMILIES + FAMILIES_V2, "v2-only": FAMILIES_V2}[name]
+
+
+def build(seed, kind=1, grid=128, n_surf=30000, n_uni=32000, n_near=32000, near_sigmas=None):
     """Generate one shape; raises Degenerate if it is unusable."""
     rng = np.random.default_rng([kind, seed])
-    sh = random_program(rng)
+    near_sigmas = STREAMS[kind][1] if near_sigmas is None else near_sigmas
+    sh = random_program(rng, stream_families(kind))
     # 1. coarse bounds: all points within ~1 coarse voxel of the surface or inside
     lo, hi = np.full(3, -2.5, F), np.full(3, 2.5, F)
     nc = 40
@@ -553,8 +718,8 @@ def build(seed, kind=1, grid=128, n_surf=30000, n_uni=32000, n_near=32000, near_
     near_src = surf[n_surf:]
     surf, nrm = surf[:n_surf], nrm[:n_surf]
     quni = rng.uniform(-0.55, 0.55, (n_uni, 3)).astype(np.float16)
-    k = n_near // 2
-    sig = np.concatenate([np.full(k, near_sigmas[0], F), np.full(n_near - k, near_sigmas[1], F)])
+    # equal parts per band (halves for two bands, as the first prior had)
+    sig = np.asarray(near_sigmas, F)[np.arange(n_near) * len(near_sigmas) // n_near]
     qnear = (near_src + rng.normal(size=(n_near, 3)).astype(F) * sig[:, None]).astype(np.float16)
     occ_uni = sh.sdf(quni.astype(F)) < 0
     occ_near = sh.sdf(qnear.astype(F)) < 0

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as Fn
 
-from .data import CACHE, InlineGenerator, Pool, heldout_set, make_batch
+from .data import CACHE, InlineGenerator, Pool, Scan, heldout_set, make_batch
 from .model import Config, ConvONet
 
 RUNS = Path(__file__).resolve().parent / "runs"
@@ -93,6 +93,11 @@ def main(argv=None):
                     help="generate chunks in N background processes (replaces --gen-every)")
     ap.add_argument("--gen-chunks", type=int, default=2000, help="chunk ids the background workers may fill")
     ap.add_argument("--min-pool", type=int, default=32, help="with --gen-workers: wait for this many shapes")
+    ap.add_argument("--shape-kind", type=int, default=1,
+                    help="training stream (shapes.STREAMS): 1 the first prior's, 3 with the new families")
+    ap.add_argument("--aug-falloff", type=float, default=0.0, help="share of clouds with a density falloff")
+    ap.add_argument("--aug-outliers", type=float, default=0.0, help="share of clouds with stray points")
+    ap.add_argument("--aug-onesided", type=float, default=0.0, help="share of clouds seen from one side")
     for k, v in Config().to_dict().items():
         ap.add_argument("--" + k.replace("_", "-"), type=type(v), default=v)
     a = ap.parse_args(argv)
@@ -107,7 +112,8 @@ def main(argv=None):
         from .data import gen_chunk, missing_chunks
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         workers = mp.get_context("fork").Pool(a.gen_workers)
-        gen_async = workers.map_async(partial(gen_chunk, cache=a.cache), missing_chunks(a.gen_chunks, a.cache),
+        gen_async = workers.map_async(partial(gen_chunk, cache=a.cache, kind=a.shape_kind),
+                                      missing_chunks(a.gen_chunks, a.cache),
                                       chunksize=1)
     run = Path(a.runs) / a.name
     run.mkdir(parents=True, exist_ok=True)
@@ -141,7 +147,14 @@ def main(argv=None):
         torch.manual_seed(a.seed)
         random.seed(a.seed)
         rng = np.random.default_rng(a.seed)
-        if a.init:
+        if a.init and a.init.endswith(".safetensors"):
+            # the shipped prior (assets/prior.safetensors): a clone has it, not the checkpoint
+            from .export import load_weights
+            model, md = load_weights(a.init)
+            model.train()
+            cfg = model.cfg
+            print(f"initialised from {a.init} (step {md['step']}, held-out IoU {md['heldout_iou']})", flush=True)
+        elif a.init:
             st0 = torch.load(a.init, weights_only=False, map_location="cpu")
             cfg = Config(**st0["config"])
             model = ConvONet(cfg)
@@ -162,7 +175,8 @@ def main(argv=None):
     while workers is not None and len(pool) < a.min_pool and not gen_async.ready():
         time.sleep(1.0)
         pool.refresh()
-    gen = InlineGenerator(a.cache)
+    gen = InlineGenerator(a.cache, kind=args0.get("shape_kind", 1))
+    scan = Scan(args0.get("aug_falloff", 0.0), args0.get("aug_outliers", 0.0), args0.get("aug_onesided", 0.0))
     held = heldout_set(a.heldout, cache=a.cache)
     print(f"config {cfg.to_dict()}; params {sum(p.numel() for p in model.parameters())}; "
           f"pool {len(pool)} shapes; held-out {len(held['cloud'])}", flush=True)
@@ -188,7 +202,7 @@ def main(argv=None):
 
     def next_batch():
         return make_batch(pool, rng, a.batch, n_q=a.n_query, noise_max=a.noise_max,
-                          pts_range=(a.pts_min, a.pts_max))
+                          pts_range=(a.pts_min, a.pts_max), scan=scan)
 
     from concurrent.futures import ThreadPoolExecutor
     batcher = ThreadPoolExecutor(1)

@@ -15,15 +15,18 @@ USAGE:
     nkrr info CLOUD [reconstruct options]
                             point count, bounds, a units guess, attributes, warnings, and the
                             memory each stage needs on this machine's GPU (for the options)
-    nkrr reconstruct CLOUD -o OUT.glb|.ply|.obj|.stl [OPTIONS]
-                            a watertight mesh of the cloud; the extension picks the format
+    nkrr reconstruct CLOUD -o OUT.glb|.ply|.obj|.stl [--weights PRIOR.safetensors] [OPTIONS]
+                            a watertight mesh of the cloud; the extension picks the format;
+                            --weights: a network prior in the built-in one's format (one
+                            exported by training/export.py) instead of the built-in one
 {OPTIONS}    nkrr metrics GT.obj RECON.glb|RECON.obj [RECON ...] [--seed N]
                             one JSON line per reconstruction: cd1x100, fscore, nc, iou
                             (null unless GT is watertight), watertight (the reconstruction's),
                             by the protocol of the eval data (see nkrr::eval); --seed picks
                             other samples, to see the sampling noise              [1]
     nkrr eval DIR [--sizes 3k,10k] [--methods network,nkrr] [--shapes A,B] [--out PREFIX]
-              [--keep-meshes] [reconstruct options except -o and --method]
+              [--keep-meshes] [--weights PRIOR.safetensors]
+              [reconstruct options except -o and --method]
                             reconstruct every DIR/NAME-SIZE.ply with each method, score it
                             against DIR/NAME.obj; writes PREFIX.md and PREFIX.json  [eval]
         methods: network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune,
@@ -252,6 +255,23 @@ fn preflight(cloud: &nkrr::cloud::PointCloud, settings: &Settings) {
     }
 }
 
+/// A prior for `--weights`, read and checked before any other work.
+fn read_weights(path: &str) -> Result<nkrr::net::Weights, Failure> {
+    let bytes = std::fs::read(path).map_err(|e| fail(format!("--weights {path}: cannot read it: {e}")))?;
+    nkrr::net::Weights::from_safetensors(&bytes)
+        .map_err(|e| fail(format!("--weights {path}: not a network prior nkrr can use: {e}")))
+}
+
+/// The engine with `weights` (`--weights`), or with the built-in prior.
+fn engine(gpu: nkrr::gpu::Gpu, weights: Option<nkrr::net::Weights>) -> Result<nkrr::pipeline::Engine, Failure> {
+    use nkrr::pipeline::Engine;
+    let engine = match weights {
+        Some(w) => pollster::block_on(Engine::with_weights(gpu, &w)),
+        None => pollster::block_on(Engine::new(gpu)),
+    };
+    engine.map_err(|e| fail(e.to_string()))
+}
+
 fn gpu() -> Result<(), Failure> {
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
     say!("{}", gpu.describe());
@@ -259,14 +279,16 @@ fn gpu() -> Result<(), Failure> {
 }
 
 fn reconstruct(args: &[String]) -> Result<(), Failure> {
-    use nkrr::pipeline::{Engine, Stage};
+    use nkrr::pipeline::Stage;
     let mut settings = Settings::default();
     let mut input = None;
     let mut output = None;
+    let mut weights = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
             "-o" | "--output" => output = Some(value(&mut it, a)?),
+            "--weights" => weights = Some(read_weights(&value(&mut it, a)?)?),
             s if reconstruct_option(s, &mut it, &mut settings)? => {}
             s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
             s if input.is_none() => input = Some(s.to_string()),
@@ -296,7 +318,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     }
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
     tell!("GPU: {}", gpu.info.name);
-    let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
+    let engine = engine(gpu, weights)?;
     let mut last = String::new();
     let mut report = |s: &Stage| {
         let line = match s {
@@ -571,13 +593,13 @@ struct EvalRun {
 }
 
 fn eval(args: &[String]) -> Result<(), Failure> {
-    use nkrr::pipeline::Engine;
     let mut dir = None;
     let mut sizes: Vec<String> = vec!["3k".into(), "10k".into()];
     let mut methods: Vec<String> = vec!["network".into(), "nkrr".into()];
     let mut shapes: Option<Vec<String>> = None;
     let mut out = "eval".to_string();
     let mut keep = false;
+    let mut weights = None;
     let mut base = Settings::default();
     let names = |s: String| -> Vec<String> { s.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect() };
     let mut it = args.iter();
@@ -588,6 +610,7 @@ fn eval(args: &[String]) -> Result<(), Failure> {
             "--shapes" => shapes = Some(names(value(&mut it, a)?)),
             "--out" => out = value(&mut it, a)?,
             "--keep-meshes" => keep = true,
+            "--weights" => weights = Some(read_weights(&value(&mut it, a)?)?),
             "--method" | "-o" | "--output" => return Err(usage(&format!("eval: {a} is not an eval option (see --methods, --out)"))),
             s if reconstruct_option(s, &mut it, &mut base)? => {}
             s if s.starts_with('-') => return Err(usage(&format!("eval: unknown option '{s}'"))),
@@ -627,7 +650,7 @@ fn eval(args: &[String]) -> Result<(), Failure> {
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
     let adapter = gpu.info.name.clone();
     tell!("GPU: {adapter}");
-    let engine = pollster::block_on(Engine::new(gpu)).map_err(|e| fail(e.to_string()))?;
+    let engine = engine(gpu, weights)?;
     let mut runs: Vec<EvalRun> = Vec::new();
     let mut gt_cache: Option<(String, Result<nkrr::eval::GroundTruth, String>)> = None;
     for (shape, size) in &jobs {
