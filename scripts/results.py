@@ -192,6 +192,16 @@ def run_spsr(data, sizes, out):
     open(os.path.join(out, "wall"), "w").write(f"{time.time() - t0:.1f}\n")
 
 
+def ipsr_rows(jl):
+    """A local iPSR run's rows (IPSR_HOW), or none."""
+    if not os.path.exists(jl):
+        return []
+    rows = [json.loads(x) for x in open(jl)]
+    for r in rows:
+        r["times"] = {"total": r.get("total_s")}
+    return [r for r in rows if "error" not in r]
+
+
 def spsr_rows(jl):
     """spsr.jsonl's rows as the report reads them: method spsr and a times dict."""
     rows = [json.loads(x) for x in open(jl)]
@@ -282,8 +292,17 @@ def render_phase(work, shapes, size):
 
 # ---------------------------------------------------------------- report
 
-METHOD_ORDER = ["network", "nkrr", "spsr"] + ABLATIONS
-LABEL = {"network": "network", "nkrr": "nkrr", "spsr": "SPSR (depth 8)"}
+METHOD_ORDER = ["network", "nkrr", "spsr", "ipsr"] + ABLATIONS
+LABEL = {"network": "network", "nkrr": "nkrr", "spsr": "SPSR (depth 8)", "ipsr": "iPSR (defaults)"}
+# iPSR (Hou et al., SIGGRAPH 2022) is built and run outside this repository (neither its code nor
+# a script that builds it is committed): its rows are read when WORK/ipsr/ipsr.jsonl and
+# WORK/hard/ipsr/ipsr.jsonl are there, in spsr.jsonl's form with total_s (see IPSR_HOW).
+IPSR_HOW = ("iPSR: github.com/houfei0801/ipsr at 0cf5932 (MIT), built beside this repository with its own "
+            "makefile (`g++ -std=c++11 -O3 -fopenmp`), run with its defaults (30 iterations, point weight 10, "
+            "depth 10, 10 neighbours) on one core (`OMP_THREAD_LIMIT=1`), its PLY output scored by the same "
+            "`nkrr metrics`; rows in `target/results/ipsr/ipsr.jsonl` and `target/results/hard/ipsr/ipsr.jsonl`. "
+            "Its code and the script that ran it are not in this repository, so a clone's report has no iPSR "
+            "rows unless they are made the same way.")
 
 
 def fmt(v, nd=3):
@@ -349,14 +368,15 @@ def plot_metrics(rows, shapes, path):
     for ax, (key, title) in zip(axes, [("cd1x100", "CD1 x100 (lower is better)"),
                                        ("fscore", "F-score @ 0.01"), ("nc", "normal consistency"),
                                        ("iou", "IoU (closed ground truths)")]):
-        for m, c in (("network", "tab:blue"), ("nkrr", "tab:orange"), ("spsr", "tab:green")):
+        for m, c in (("network", "tab:blue"), ("nkrr", "tab:orange"), ("spsr", "tab:green"), ("ipsr", "tab:red")):
             xs, ys = [], []
             for size in SIZES:
                 v = mean([r.get(key) for r in rows if r["method"] == m and r["size"] == size])
                 if v is not None:
                     xs.append(SIZE_N[size])
                     ys.append(v)
-            ax.plot(xs, ys, "o-", color=c, label=LABEL[m])
+            if xs:
+                ax.plot(xs, ys, "o-", color=c, label=LABEL[m])
         ax.set_xscale("log")
         ax.set_xticks([500, 3000, 10000], ["500", "3k", "10k"])
         ax.set_title(title, fontsize=9)
@@ -452,7 +472,9 @@ def compare_table(main_rows, rows, what, times=False):
 def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, render_png, bench, levers=None, paper=None, hard=None, before_png=None):
     runs = main["runs"]
     shapes = sorted({r["shape"] for r in runs})
-    rows = runs + spsr
+    ipsr = ipsr_rows(os.path.join(work, "ipsr", "ipsr.jsonl"))
+    rows = runs + spsr + ipsr
+    peers = ["spsr"] + (["ipsr"] if ipsr else [])
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], text=True,
                             capture_output=True).stdout.strip()
     dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "src"],
@@ -519,16 +541,20 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
       "orientation + Poisson, Open3D multithreaded). Best per shape in bold.\n")
     for size in reversed(SIZES):
         w(f"### {size} points\n")
-        w(table([r for r in rows if r["size"] == size], ["network", "nkrr", "spsr"], shapes))
+        w(table([r for r in rows if r["size"] == size], ["network", "nkrr"] + peers, shapes))
         w("")
     w("![metrics vs size](img/results-metrics.png)\n")
+    if ipsr:
+        w(IPSR_HOW + " Its seconds are one core's, measured while other work ran.\n")
+    else:
+        w("iPSR: not run here (no `target/results/ipsr/ipsr.jsonl`).\n")
 
     # reading
     w("### Reading\n")
     for size in reversed(SIZES):
         srows = [r for r in rows if r["size"] == size]
         parts = []
-        for a, b in (("nkrr", "network"), ("nkrr", "spsr")):
+        for a, b in [("nkrr", "network")] + [("nkrr", p) for p in peers]:
             c = wins(srows, a, b, shapes, "cd1x100", True)
             f = wins(srows, a, b, shapes, "fscore", False)
             nc = wins(srows, a, b, shapes, "nc", False)
@@ -587,7 +613,8 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w("## The harder set\n")
     if hard:
         hruns, hspsr = hard
-        hrows = hruns["runs"] + hspsr
+        hipsr = ipsr_rows(os.path.join(work, "hard", "ipsr", "ipsr.jsonl"))
+        hrows = hruns["runs"] + hspsr + hipsr
         hshapes = sorted({r["shape"] for r in hruns["runs"]})
         w("3000-point clouds of the six eval meshes made by `scripts/hard_clouds.py` (seeded): "
           "`noise` (Gaussian sigma 0.02 x the longest bbox side, four times the eval clouds'), "
@@ -598,23 +625,31 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
           "These clouds decided one thing, the form of the stray-point filter (local density instead of "
           "the textbook global filter, which took the sparse end of the falloff clouds: `src/outliers.rs`); "
           "no setting's value was tuned on them.\n")
-        w("| cloud | method | CD1 x100 | F-score | NC | nkrr beats SPSR on CD1 / F |")
-        w("|---|---|---|---|---|---|")
+        hpeers = ["spsr"] + (["ipsr"] if hipsr else [])
+        w("| cloud | method | CD1 x100 | F-score | NC | nkrr beats SPSR on CD1 / F |"
+          + (" nkrr beats iPSR on CD1 / F |" if hipsr else ""))
+        w("|---|---|---|---|---|---|" + ("---|" if hipsr else ""))
         for kind in HARD_KINDS:
             krows = [r for r in hrows if r["size"] == kind]
-            for m in ("network", "network-keep-outliers", "nkrr", "nkrr-keep-outliers", "spsr"):
+            for m in ["network", "network-keep-outliers", "nkrr", "nkrr-keep-outliers"] + hpeers:
                 mm = mean_metrics([r for r in krows if r["method"] == m])
-                extra = ""
+                extra = [""] * len(hpeers)
                 if m == "nkrr":
-                    c = wins(krows, "nkrr", "spsr", hshapes, "cd1x100", True)
-                    f = wins(krows, "nkrr", "spsr", hshapes, "fscore", False)
-                    extra = f"{c[0]}/{c[1]} / {f[0]}/{f[1]}"
-                w(f"| {kind} | {LABEL.get(m, m)} | {fmt(mm[0])} | {fmt(mm[1])} | {fmt(mm[2])} | {extra} |")
+                    extra = []
+                    for peer in hpeers:
+                        c = wins(krows, "nkrr", peer, hshapes, "cd1x100", True)
+                        f = wins(krows, "nkrr", peer, hshapes, "fscore", False)
+                        extra.append(f"{c[0]}/{c[1]} / {f[0]}/{f[1]}")
+                w(f"| {kind} | {LABEL.get(m, m)} | {fmt(mm[0])} | {fmt(mm[1])} | {fmt(mm[2])} | {' | '.join(extra)} |")
         allc = sum(wins([r for r in hrows if r["size"] == k], "nkrr", "spsr", hshapes, "cd1x100", True)[0] for k in HARD_KINDS)
         allf = sum(wins([r for r in hrows if r["size"] == k], "nkrr", "spsr", hshapes, "fscore", False)[0] for k in HARD_KINDS)
         n = len(HARD_KINDS) * len(hshapes)
         w(f"\nOver all {n} harder clouds nkrr beats screened Poisson on CD1 on {allc} and on F-score on {allf}. "
           "Per-cloud rows: `target/results/hard-eval.md` and `target/results/hard/spsr/spsr.jsonl`.\n")
+        if hipsr:
+            ic = sum(wins([r for r in hrows if r["size"] == k], "nkrr", "ipsr", hshapes, "cd1x100", True)[0] for k in HARD_KINDS)
+            jf = sum(wins([r for r in hrows if r["size"] == k], "nkrr", "ipsr", hshapes, "fscore", False)[0] for k in HARD_KINDS)
+            w(f"Against iPSR (as above): nkrr's CD1 is lower on {ic} and its F-score higher on {jf} of the {n}.\n")
     else:
         w("Not run (phase `hard`).\n")
 

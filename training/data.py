@@ -140,9 +140,11 @@ class Scan:
     sample (issue 14 items 6 and 7; all 0 is the first prior's recipe). Each mimics a failure of
     real scans that the eval's harder set (scripts/hard_clouds.py) also has."""
 
-    def __init__(self, falloff=0.0, outliers=0.0, onesided=0.0, falloff_max=60.0, outliers_max=0.1):
+    def __init__(self, falloff=0.0, outliers=0.0, onesided=0.0, falloff_max=60.0, outliers_max=0.1, fixed=False):
         self.falloff, self.outliers, self.onesided = falloff, outliers, onesided
         self.falloff_max, self.outliers_max = falloff_max, outliers_max
+        # fixed: always the largest falloff (held-out sets), not a random one up to it
+        self.fixed = fixed
 
 
 def _draw_points(shape, rng, n_pts, scan):
@@ -159,7 +161,7 @@ def _draw_points(shape, rng, n_pts, scan):
         d = rng.normal(size=3)
         t = surf.astype(np.float32) @ (d / np.linalg.norm(d))
         t = (t - t.min()) / max(float(np.ptp(t)), 1e-6)
-        logw -= t * rng.uniform(0, np.log(scan.falloff_max))
+        logw -= t * (np.log(scan.falloff_max) if scan.fixed else rng.uniform(0, np.log(scan.falloff_max)))
     if not logw.any():
         return surf[rng.choice(len(surf), n_pts, replace=n_pts > len(surf))].astype(np.float32)
     # weighted draw without replacement (Gumbel top-k: keys log w + Gumbel noise)
