@@ -291,3 +291,44 @@ fn simplified_and_compressed_glbs_keep_the_surface() {
     assert!(cd[2] - cd[0] < 0.02, "simplification lost too much: {cd:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn weights_flag_uses_the_given_prior_and_rejects_bad_files() {
+    let dir = std::env::temp_dir().join(format!("nkrr-cli-weights-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cloud = eval("spot-3k.ply");
+    let prior = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/prior.safetensors");
+    let prior_bytes = std::fs::read(&prior).unwrap();
+    let run = |name: &str, weights: Option<&str>| -> Vec<u8> {
+        let out = dir.join(name).to_string_lossy().into_owned();
+        let mut args = vec!["reconstruct", &cloud, "-o", &out, "--method", "network", "--resolution", "32"];
+        if let Some(w) = weights {
+            args.extend(["--weights", w]);
+        }
+        let (code, _, stderr) = nkrr(&args);
+        assert_eq!(code, 0, "{name}: {stderr}");
+        std::fs::read(&out).unwrap()
+    };
+    // The built-in prior given as a file: the same mesh, byte for byte.
+    let builtin = run("builtin.ply", None);
+    assert_eq!(run("file.ply", Some(prior.to_str().unwrap())), builtin);
+    // Another prior of the same format (the last weight of the file changed): another mesh,
+    // so the file is what the network runs with.
+    let mut other = prior_bytes.clone();
+    let n = other.len();
+    other[n - 4..].copy_from_slice(&25.0f32.to_le_bytes());
+    let other_path = temp_file("nkrr-other-prior.safetensors", &other);
+    assert_ne!(run("other.ply", Some(&other_path)), builtin);
+    // A missing file and a damaged one: errors that name the flag and the file, before any work.
+    let missing = dir.join("missing.safetensors").to_string_lossy().into_owned();
+    let out = dir.join("never.glb").to_string_lossy().into_owned();
+    let (code, _, stderr) = nkrr(&["reconstruct", &cloud, "-o", &out, "--weights", &missing]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains(&format!("--weights {missing}: cannot read it")), "{stderr}");
+    let cut = temp_file("nkrr-cut-prior.safetensors", &prior_bytes[..prior_bytes.len() / 2]);
+    let (code, _, stderr) = nkrr(&["eval", &eval(""), "--weights", &cut]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains("not a network prior nkrr can use"), "{stderr}");
+    assert!(!std::path::Path::new(&out).exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
