@@ -7,8 +7,8 @@ the Python environment first.
 Every phase writes its raw output under WORK (target/results) and is skipped when that output is
 already there, so a second run only redoes the report; --fresh redoes everything and --redo
 PHASE one phase. Phases: main, spsr, rerun, scaling, ablations, levers (issue 14: each lever
-turned back, and the paper's method whole), hard (the harder clouds), render, bench; then the
-report.
+turned back, and the paper's method whole), hard (the harder clouds), prior (lever 6: another
+prior, --other-prior), render, bench; then the report.
 
     .venv-peers/bin/python scripts/results.py [--work target/results] [--fresh] [--redo PHASE]
         [--ablation-shapes A,B,...] [--scale-nkrr-max 1000000]
@@ -125,6 +125,11 @@ LEVERS2 = [
     ("nkrr-position", "2: the position in the kernel", "the kernel sees [F(q), q], turned on (not a default)"),
     ("nkrr-position-prior-mean", "2 with 1: the position in the kernel and the network as the prior mean", "both turned on (not a default)"),
 ]
+# A third run: the pairs across the surface (src/orient.rs), 0.5 chosen on cow, fandisk, suzanne.
+LEVERS3 = [
+    ("nkrr-across", "8: pairs across the surface (thin parts)", "two points across the surface at each input point, "
+     "labelled by the network's ordering, `--across 0.5`, turned on (not a default)"),
+]
 HARD_KINDS = ["noise", "outliers", "falloff", "onesided"]
 
 
@@ -134,9 +139,28 @@ def levers_phase(work):
     levers = eval_phase(work, "levers", ["--sizes", ",".join(SIZES), "--methods",
                                          ",".join(m for m, _, _ in LEVERS)])
     more = eval_phase(work, "levers2", ["--sizes", ",".join(SIZES), "--methods", ",".join(m for m, _, _ in LEVERS2)])
-    levers = {"runs": levers["runs"] + more["runs"], "wall_s": (levers["wall_s"] or 0) + (more["wall_s"] or 0)}
+    third = eval_phase(work, "levers3", ["--sizes", ",".join(SIZES), "--methods", ",".join(m for m, _, _ in LEVERS3)])
+    levers = {"runs": levers["runs"] + more["runs"] + third["runs"],
+              "wall_s": sum(x["wall_s"] or 0 for x in (levers, more, third))}
     paper = eval_phase(work, "paper", ["--sizes", "500,3k", "--methods", "nkrr-paper", "--keep-meshes"])
     return levers, paper
+
+
+def prior_phase(work, other):
+    """Lever 6: the network and nkrr with another prior (`--weights OTHER`) on the eval clouds
+    (WORK/prior.json) and the harder clouds (WORK/prior-hard.json), and both priors' held-out
+    IoU on the procedural shapes, clean and degraded, with and without rotation averaging
+    (training/compare.py: WORK/prior-compare.json). None when OTHER is not there."""
+    if not os.path.exists(other):
+        return None
+    ev = eval_phase(work, "prior", ["--sizes", ",".join(SIZES), "--methods", "network,nkrr", "--weights", other])
+    hard = eval_phase(work, "prior-hard", ["--sizes", ",".join(HARD_KINDS), "--methods", "network,nkrr",
+                                           "--weights", other], data="hard")
+    cmp_path = os.path.join(work, "prior-compare.json")
+    if not os.path.exists(cmp_path):
+        sh([".venv/bin/python", "-m", "training.compare", "assets/prior.safetensors", other, "--tta",
+            "--cache", os.path.join(work, "prior-cache"), "--out", cmp_path])
+    return {"other": other, "eval": ev, "hard": hard, "compare": json.load(open(cmp_path))}
 
 
 def hard_phase(work):
@@ -469,7 +493,7 @@ def compare_table(main_rows, rows, what, times=False):
     return "\n".join(lines), {k: max(v) if v else None for k, v in diffs.items()}
 
 
-def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, render_png, bench, levers=None, paper=None, hard=None, before_png=None):
+def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, render_png, bench, levers=None, paper=None, hard=None, before_png=None, prior=None):
     runs = main["runs"]
     shapes = sorted({r["shape"] for r in runs})
     ipsr = ipsr_rows(os.path.join(work, "ipsr", "ipsr.jsonl"))
@@ -524,10 +548,15 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w("nkrr eval target/results/data --sizes 500,3k,10k --methods "
       + ",".join(m for m, _, _ in LEVERS) + "   # the levers")
     w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(m for m, _, _ in LEVERS2))
+    w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(m for m, _, _ in LEVERS3))
     w("nkrr eval target/results/data --sizes 500,3k --methods nkrr-paper --keep-meshes")
     w("scripts/hard_clouds.py --spsr   # the harder clouds and screened Poisson on them")
     w("nkrr eval target/results/hard --sizes " + ",".join(HARD_KINDS)
       + " --methods network,nkrr,network-keep-outliers,nkrr-keep-outliers")
+    if prior:
+        w(f"nkrr eval target/results/data --sizes {','.join(SIZES)} --methods network,nkrr --weights {prior['other']}")
+        w(f"nkrr eval target/results/hard --sizes {','.join(HARD_KINDS)} --methods network,nkrr --weights {prior['other']}")
+        w(f".venv/bin/python -m training.compare assets/prior.safetensors {prior['other']} --tta")
     w("```\n")
     walls = [main.get("wall_s"), abl.get("wall_s") if abl else None, rerun.get("wall_s")]
     w(f"Wall time of the runs here: main eval {fmt(walls[0], 0)} s, ablations {fmt(walls[1], 0)} s, "
@@ -590,17 +619,19 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
         nk = [r for r in runs if r["method"] == "nkrr"]
         w("Each lever turned back on its own (levers 1 and 2, not defaults: turned on), everything else at the "
           "defaults, on the same clouds as the main run (`nkrr eval --methods "
-          + ",".join(m for m, _, _ in LEVERS + LEVERS2) + "`). Settings were chosen on cow, fandisk and "
+          + ",".join(m for m, _, _ in LEVERS + LEVERS2 + LEVERS3) + "`). Settings were chosen on cow, fandisk and "
           "suzanne; spot, stanford-bunny and teapot were not used to choose them (per-shape rows: "
           "`target/results/levers.md`).\n")
-        for m, title, what in LEVERS + LEVERS2:
+        for m, title, what in LEVERS + LEVERS2 + LEVERS3:
             w(f"### Lever {title}\n")
             w(f"The variant: {what}.\n")
             w(lever_table(nk, [r for r in lv if r["method"] == m], SIZES, "default", m))
             w("")
-        w("### Lever 6\n")
-        w("Not done: a retrained prior (item 6) needs hours of training that this machine (2 cores, "
-          "no GPU) could not give in this session, so it has no table.\n")
+        w("### Lever 6: another prior\n")
+        if prior:
+            w(prior_section(prior, runs, hard))
+        else:
+            w("Not run (phase `prior`: no second prior at the path given).\n")
         if paper:
             w("### All of them: the paper's method\n")
             w("`nkrr-paper`: the paper's tuning (all pairs, lr 0.1, 100 steps, lowest training error), "
@@ -745,6 +776,34 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     log("wrote " + os.environ.get("RESULTS_MD", "docs/results.md"))
 
 
+def prior_section(prior, runs, hard):
+    """Lever 6's tables: the shipped prior (default) against the other one, for the network and
+    nkrr, on the eval clouds and the harder ones; then held-out IoU."""
+    L = [f"`{prior['other']}` (`training/train_v2.sh`, see `training/report_v2.md`) in place of the shipped "
+         "prior (`nkrr eval --weights`), everything else at the defaults, on the same clouds.\n"]
+    for m in ("network", "nkrr"):
+        base = [r for r in runs if r["method"] == m]
+        var = [r for r in prior["eval"]["runs"] if r["method"] == m]
+        L.append(f"{m}, eval clouds:\n")
+        L.append(lever_table(base, var, SIZES, f"{m} (shipped prior)", f"{m} (other prior)") + "\n")
+    if hard:
+        for m in ("network", "nkrr"):
+            base = [r for r in hard[0]["runs"] if r["method"] == m]
+            var = [r for r in prior["hard"]["runs"] if r["method"] == m]
+            L.append(f"{m}, harder clouds:\n")
+            L.append(lever_table(base, var, HARD_KINDS, f"{m} (shipped prior)", f"{m} (other prior)") + "\n")
+    L.append("Held-out IoU (`training/compare.py`: 32 procedural shapes from seeds no training saw, 3000 points, "
+             "noise 0.005; `falloff`: density falling 55x, `outliers`: 10 % stray points, `new`: the second "
+             "stream's new families; `8 rotations`: logits averaged over the 8 axis rotations, eight times the "
+             "network's cost):\n")
+    L.append("| prior | rotations | clean | falloff | outliers | new families |")
+    L.append("|---|---|---|---|---|---|")
+    for r in prior["compare"]:
+        L.append(f"| `{r['prior']}` | {'8' if r['tta'] else '1'} | {r['clean']:.4f} | {r['falloff']:.4f} | "
+                 f"{r['outliers']:.4f} | {r['new']:.4f} |")
+    return "\n".join(L) + "\n"
+
+
 def spsr_wall(work):
     p = os.path.join(work, "spsr", "wall")
     return float(open(p).read()) if os.path.exists(p) else None
@@ -759,18 +818,22 @@ def main():
     ap.add_argument("--scale-nkrr-max", type=int, default=1000000,
                     help="largest scaling cloud nkrr (defaults) runs on; the network runs on all")
     ap.add_argument("--render-shapes", default="stanford-bunny,fandisk")
-    ap.add_argument("--phases", default="main,spsr,rerun,scaling,ablations,levers,hard,render,bench,report",
+    ap.add_argument("--other-prior", default="training/prior-v2.safetensors",
+                    help="lever 6: the prior compared with the shipped one (phase prior)")
+    ap.add_argument("--phases", default="main,spsr,rerun,scaling,ablations,levers,hard,prior,render,bench,report",
                     help="phases to run (others are read from WORK if there)")
     a = ap.parse_args()
     work = a.work
     redo = set(a.redo.split(",")) - {""}
     if a.fresh:
-        redo = {"main", "spsr", "rerun", "scaling", "ablations", "levers", "hard", "render", "bench"}
+        redo = {"main", "spsr", "rerun", "scaling", "ablations", "levers", "hard", "prior", "render", "bench"}
     files = {"main": ["main.json", "main.wall"], "spsr": ["spsr"],
              "rerun": ["rerun.json", "rerun.wall"], "scaling": ["scaling.jsonl"],
              "ablations": ["ablations.json", "ablations.wall"], "bench": ["bench"],
-             "levers": ["levers.json", "levers.wall", "levers2.json", "levers2.wall", "paper.json", "paper.wall"],
-             "hard": ["hard-eval.json", "hard-eval.wall"]}
+             "levers": ["levers.json", "levers.wall", "levers2.json", "levers2.wall", "levers3.json", "levers3.wall",
+                        "paper.json", "paper.wall"],
+             "hard": ["hard-eval.json", "hard-eval.wall"],
+             "prior": ["prior.json", "prior.wall", "prior-hard.json", "prior-hard.wall", "prior-compare.json"]}
     for p in redo:
         for f in files.get(p, []):
             q = os.path.join(work, f)
@@ -809,6 +872,9 @@ def main():
             before = before_render(work, paper)
     if "hard" in phases or ("report" in phases and os.path.exists(os.path.join(work, "hard-eval.wall"))):
         hard = hard_phase(work)
+    prior = None
+    if "prior" in phases or ("report" in phases and os.path.exists(os.path.join(work, "prior-compare.json"))):
+        prior = prior_phase(work, a.other_prior)
     if "report" in phases:
         abl = ablations_phase(work, abl_shapes, run=False)
         if abl:
@@ -816,7 +882,7 @@ def main():
         report(work, load_eval(os.path.join(work, "main")), spsr_phase(work),
                load_eval(os.path.join(work, "rerun")), seeds_phase(work), scaling_phase(work, a.scale_nkrr_max),
                abl, abl_shapes, a.scale_nkrr_max, render_phase(work, a.render_shapes.split(","), "3k"),
-               bench_phase(work, run=False), levers, paper, hard, before)
+               bench_phase(work, run=False), levers, paper, hard, before, prior)
 
 
 def before_render(work, paper):

@@ -194,12 +194,30 @@ pub async fn training_pairs(
     points: &[[f32; 3]],
     settings: &Settings,
 ) -> Result<TrainingPairs, FitError> {
-    let extra = crate::sample::upsample(points, &settings.offsets(points.len()), 2);
+    let offsets = settings.offsets(points.len());
+    let extra = crate::sample::upsample(points, &offsets, 2);
     let mut all = points.to_vec();
     all.extend_from_slice(&extra);
+    let normals = settings.across.map(|_| crate::orient::pca_normals(points, crate::orient::NEIGHBOURS));
+    if let (Some(f), Some(normals)) = (settings.across, &normals) {
+        let spacing = crate::sample::kth_neighbour_distance(points, offsets.near_k.unwrap_or(crate::orient::NEIGHBOURS));
+        let delta: Vec<f32> = spacing.iter().map(|d| f * d).collect();
+        all.extend(crate::orient::across(points, normals, &delta));
+    }
     let (features, logits) = net.decode(planes, &all).await?;
     let clip = settings.label_clip.unwrap_or(f32::INFINITY);
-    let y = targets(&logits, points.len(), clip, settings.prior_mean);
+    let mut y = targets(&logits, points.len(), clip, settings.prior_mean);
+    if let Some(normals) = &normals {
+        // The pairs across the surface: their labels come from the orderings (crate::orient).
+        let start = points.len() + extra.len();
+        let labels = crate::orient::across_targets(points, normals, &logits[start..], crate::orient::NEIGHBOURS, crate::orient::FLOOR, clip);
+        for (i, l) in labels.into_iter().enumerate() {
+            y[start + i] = match settings.prior_mean {
+                PriorMean::Zero => l,
+                PriorMean::Network => l - logits[start + i],
+            };
+        }
+    }
     let x = regression_input(settings.euclidean, settings.position, &all, features);
     let problem = krr::Problem::from_f32(&x, &y, input_dim(settings, net.config().c_dim))?;
     Ok(TrainingPairs { problem, inputs: points.len() })

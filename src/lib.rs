@@ -16,6 +16,7 @@ pub mod io;
 pub mod krr;
 pub mod mesh;
 pub mod net;
+pub mod orient;
 pub mod outliers;
 pub mod pipeline;
 pub mod plan;

@@ -177,7 +177,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
             n = fit.max(1);
         }
     }
-    let per_point = settings.offsets(n as usize).per_point as u64;
+    let per_point = settings.extra_per_point(n as usize) as u64;
     let np = (1 + per_point) * n;
     let planes = Footprint { gpu: net_gpu::planes_bytes(cfg), ..Default::default() };
     let stage = |name: &'static str, f: Footprint| StagePlan {

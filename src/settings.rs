@@ -90,6 +90,7 @@ pub struct Settings {
     pub knn_k: usize,
     pub near_k: Option<usize>,
     pub extra_pairs: Option<usize>,
+    pub across: Option<f32>,
     pub label_clip: Option<f32>,
     pub euclidean: bool,
     pub position: bool,
@@ -111,6 +112,12 @@ impl Settings {
             near_k: self.near_k,
             per_point: crate::sample::Offsets::per_point_for(n, self.extra_pairs),
         }
+    }
+
+    /// Training points per input point beyond the point itself: the offsets' and, with
+    /// [`Settings::across`], the two across the surface.
+    pub fn extra_per_point(&self, n: usize) -> usize {
+        self.offsets(n).per_point + if self.across.is_some() { 2 } else { 0 }
     }
 }
 
@@ -137,6 +144,7 @@ impl Default for Settings {
             knn_k: 0,
             near_k: None,
             extra_pairs: None,
+            across: None,
             label_clip: None,
             euclidean: false,
             position: false,
@@ -612,6 +620,21 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| from_opt_usize(s.extra_pairs),
         set: |s, v| s.extra_pairs = opt_usize(v),
+        ..BASE
+    },
+    Setting {
+        key: "across",
+        flag: "--across",
+        label: "Pairs across the surface",
+        help: "two more training points per input point, this many near-offset distances (--near-k) along its PCA normal, labelled inside and outside by the network's ordering of the two and their neighbours' (at least ±1): thin parts the network misses get an inside; off: none (the paper)",
+        kind: Kind::Float { min: 0.01, max: 10.0 },
+        default: Value::Off,
+        can_be_off: true,
+        bare: Some(0.5),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| from_opt(s.across),
+        set: |s, v| s.across = opt_f32(v),
         ..BASE
     },
     Setting {

@@ -1,0 +1,176 @@
+//! Pairs across the surface (issue 14: thin parts).
+//!
+//! The paper's pairs take the network's logit as their label wherever they land. Where the
+//! network misses a thin part (an ear, a flap, a handle thinner than its 64² feature cells),
+//! it calls both sides "outside", the pairs say the same, and the regression can only pin its
+//! zero level to the points from one side: the part comes back in pieces or not at all.
+//!
+//! Here every input point p gets two more points, p ± δ·n along its PCA normal n. The network
+//! is asked which of the two is more inside (the higher logit): an ordering it gets right far
+//! more often than the sign, since its logits still rise towards a sheet it does not close. The
+//! neighbours' orderings vote (aligned to p's normal), the inner point's label is made at least
+//! +`floor` and the outer one's at most −`floor`, and the network's own logit is kept where it
+//! already says more. The surface then has an inside wherever the points say it has two sides.
+
+use crate::sample::PointIndex;
+
+/// Neighbours for each point's PCA normal and for the vote over orderings.
+pub const NEIGHBOURS: usize = 10;
+
+/// The least |label| of the two points across the surface: a logit of 1 is a probability of
+/// 0.73, clearly on one side without overruling what the network says with more confidence.
+pub const FLOOR: f32 = 1.0;
+
+/// Unit normals (unoriented) of each point: the least-spread direction of its `k` nearest
+/// points (itself included); (0, 0, 1) where they do not define one.
+pub fn pca_normals(points: &[[f32; 3]], k: usize) -> Vec<[f32; 3]> {
+    let index = PointIndex::new(points);
+    let mut near = Vec::with_capacity(k);
+    points
+        .iter()
+        .map(|&p| {
+            index.k_nearest(p, k, &mut near);
+            let n = near.len() as f64;
+            let mut c = [0.0f64; 3];
+            for &(_, j) in &near {
+                (0..3).for_each(|a| c[a] += points[j as usize][a] as f64 / n);
+            }
+            let mut cov = [[0.0f64; 3]; 3];
+            for &(_, j) in &near {
+                let d = [0, 1, 2].map(|a| points[j as usize][a] as f64 - c[a]);
+                for r in 0..3 {
+                    for s in 0..3 {
+                        cov[r][s] += d[r] * d[s];
+                    }
+                }
+            }
+            match crate::eigen3::symmetric(cov) {
+                Some((values, vectors)) if near.len() >= 3 => {
+                    let i = (0..3).min_by(|&a, &b| values[a].total_cmp(&values[b])).unwrap_or(0);
+                    vectors[i].map(|v| v as f32)
+                }
+                _ => [0.0, 0.0, 1.0],
+            }
+        })
+        .collect()
+}
+
+/// The two points across the surface at each input point: `2 i` is p + δ_i n_i, `2 i + 1` is
+/// p − δ_i n_i.
+pub fn across(points: &[[f32; 3]], normals: &[[f32; 3]], delta: &[f32]) -> Vec<[f32; 3]> {
+    let mut out = Vec::with_capacity(2 * points.len());
+    for ((p, n), &d) in points.iter().zip(normals).zip(delta) {
+        out.push([0, 1, 2].map(|a| p[a] + d * n[a]));
+        out.push([0, 1, 2].map(|a| p[a] - d * n[a]));
+    }
+    out
+}
+
+/// Labels of the points made by [`across`], from the network's `logits` there (same order):
+/// each point's side is the vote of its `k` nearest points' orderings (each one's logit
+/// difference, its sign turned to agree with p's normal); the inner point gets at least +`floor`,
+/// the outer at most −`floor`, both within ±`clip`. Where the vote is a tie, the logits stay.
+pub fn across_targets(
+    points: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    logits: &[f32],
+    k: usize,
+    floor: f32,
+    clip: f32,
+) -> Vec<f32> {
+    // d_i > 0: the −n side is the more inside one.
+    let order: Vec<f32> = (0..points.len()).map(|i| logits[2 * i + 1] - logits[2 * i]).collect();
+    let index = PointIndex::new(points);
+    let mut near = Vec::with_capacity(k);
+    let mut out = Vec::with_capacity(logits.len());
+    for (i, &p) in points.iter().enumerate() {
+        index.k_nearest(p, k, &mut near);
+        let vote: f32 = near
+            .iter()
+            .map(|&(_, j)| {
+                let nj = normals[j as usize];
+                let dot = (0..3).map(|a| nj[a] * normals[i][a]).sum::<f32>();
+                // A neighbour's ordering counts by its size (a clear one outweighs noise) and
+                // by how well its normal agrees with p's.
+                dot * order[j as usize]
+            })
+            .sum();
+        let (plus, minus) = (logits[2 * i], logits[2 * i + 1]);
+        let (plus, minus) = if vote > 0.0 {
+            (plus.min(-floor), minus.max(floor))
+        } else if vote < 0.0 {
+            (plus.max(floor), minus.min(-floor))
+        } else {
+            (plus, minus)
+        };
+        out.push(plus.clamp(-clip, clip));
+        out.push(minus.clamp(-clip, clip));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on a sphere of radius 0.3, evenly spread (a Fibonacci lattice).
+    fn sphere(n: usize, r: f32) -> Vec<[f32; 3]> {
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+                let t = i as f32 * 2.399_963;
+                let s = (1.0 - z * z).sqrt();
+                [r * s * t.cos(), r * s * t.sin(), r * z]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn pca_normals_are_radial_on_a_sphere() {
+        let pts = sphere(2000, 0.3);
+        for (p, n) in pts.iter().zip(pca_normals(&pts, NEIGHBOURS)) {
+            let cos = (0..3).map(|a| p[a] * n[a]).sum::<f32>().abs() / 0.3;
+            assert!(cos > 0.99, "normal {n:?} at {p:?}");
+        }
+    }
+
+    #[test]
+    fn a_sheet_the_network_calls_outside_on_both_sides_gets_an_inside() {
+        // A thin plate z ∈ [-0.01, 0.01]: points on both faces. The "network" rises towards
+        // the plate's middle but never above 0 (it misses the plate), as it does on thin ears.
+        let mut pts = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                let (x, y) = (i as f32 * 0.01 - 0.2, j as f32 * 0.01 - 0.2);
+                pts.push([x, y, 0.01]);
+                pts.push([x + 0.005, y + 0.005, -0.01]);
+            }
+        }
+        let normals = pca_normals(&pts, NEIGHBOURS);
+        let delta = vec![0.004; pts.len()];
+        let q = across(&pts, &normals, &delta);
+        let logits: Vec<f32> = q.iter().map(|p| -3.0 - 100.0 * p[2].abs()).collect();
+        let y = across_targets(&pts, &normals, &logits, NEIGHBOURS, FLOOR, 4.0);
+        for (i, p) in q.iter().enumerate() {
+            // Inside the plate: |z| < 0.01.
+            let inside = p[2].abs() < 0.01;
+            assert_eq!(y[i] > 0.0, inside, "point {p:?} label {}", y[i]);
+            assert!(y[i].abs() >= FLOOR && y[i].abs() <= 4.0);
+        }
+    }
+
+    #[test]
+    fn the_vote_overrules_one_point_whose_ordering_is_wrong() {
+        let pts = sphere(500, 0.3);
+        let normals = pca_normals(&pts, NEIGHBOURS);
+        let q = across(&pts, &normals, &vec![0.01; pts.len()]);
+        // A good network: logit 10 (0.3 − |q|); one point's pair swapped.
+        let mut logits: Vec<f32> = q.iter().map(|p| 10.0 * (0.3 - (0..3).map(|a| p[a] * p[a]).sum::<f32>().sqrt())).collect();
+        logits.swap(20, 21);
+        let y = across_targets(&pts, &normals, &logits, NEIGHBOURS, FLOOR, 4.0);
+        for (i, p) in q.iter().enumerate() {
+            let inside = (0..3).map(|a| p[a] * p[a]).sum::<f32>().sqrt() < 0.3;
+            assert_eq!(y[i] > 0.0, inside, "point {i} {p:?} label {}", y[i]);
+        }
+    }
+}
