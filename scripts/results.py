@@ -127,8 +127,8 @@ LEVERS2 = [
 ]
 # A third run: the pairs across the surface (src/orient.rs), 0.5 chosen on cow, fandisk, suzanne.
 LEVERS3 = [
-    ("nkrr-across", "8: pairs across the surface (thin parts)", "two points across the surface at each input point, "
-     "labelled by the network's ordering, `--across 0.5`, turned on (not a default)"),
+    ("nkrr-no-across", "8: pairs across the surface (thin parts)", "no points across the surface (`--no-across`; "
+     "the default puts two at each input point, `--across 0.5`, labelled by the network's ordering)"),
 ]
 HARD_KINDS = ["noise", "outliers", "falloff", "onesided"]
 

@@ -143,12 +143,13 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     let d = crate::field::input_dim(settings, cfg.c_dim) as u64;
     let mut actions = Vec::new();
 
-    // Points: the encoder's per-point buffers and, for nkrr, the training features X (two
-    // pairs a point) are not tiled.
+    // Points: the encoder's per-point buffers and, for nkrr, the training features X (`rows`
+    // pairs a point: itself, its offsets and the two across the surface) are not tiled.
     let mut n = points.min(settings.max_points).max(1) as u64;
+    let rows = 1 + settings.extra_per_point(n as usize) as u64;
     let mut n_fit = net_gpu::max_encode_points(cfg, b);
     if nkrr {
-        n_fit = n_fit.min(krr_gpu::max_pairs(b, d) / 2);
+        n_fit = n_fit.min(krr_gpu::max_pairs(b, d) / rows);
     }
     let m_fit = krr_gpu::max_inducing_points(b);
     let mut m = (settings.m as u64).clamp(1, 2 * n);
@@ -166,9 +167,9 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         m = m_fit;
     }
     if let (true, false, Some(budget)) = (nkrr, krr_on_gpu, device.host_budget) {
-        if reference::host_bytes(2 * n, m, d) > budget {
+        if reference::host_bytes(rows * n, m, d) > budget {
             // The f64 kernel matrix grows with n: find the largest n that fits.
-            let per_point = 2 * reference::host_bytes_per_pair(m, d);
+            let per_point = rows * reference::host_bytes_per_pair(m, d);
             let fit = budget.saturating_sub(reference::host_bytes(0, m, d) + attrs) / per_point.max(1);
             actions.push(format!(
                 "subsample the regression to {fit} points (from {n}): its f64 kernel matrix would exceed the {} host budget",
@@ -273,18 +274,22 @@ mod tests {
         assert!(p.actions.is_empty(), "{:?}", p.actions);
         assert_eq!((p.n, p.m), (10_000, 500));
         assert!(p.stages.iter().all(|s| s.largest_binding <= p.binding_limit));
-        // The tuning keeps K~ (4 bytes × 2n × m) on the GPU: at least 40 MB here.
+        // The tuning keeps K~ (4 bytes × 4n × m: each point, its offset and the two across the
+        // surface) on the GPU: at least 80 MB here.
         let tuning = p.stages.iter().find(|s| s.name == "tuning").unwrap();
-        assert!(tuning.gpu_bytes >= 4 * 20_000 * 500, "{}", tuning.gpu_bytes);
+        assert!(tuning.gpu_bytes >= 4 * 40_000 * 500, "{}", tuning.gpu_bytes);
     }
 
     #[test]
     fn too_many_points_for_one_buffer_are_subsampled_and_said() {
         let s = Settings { max_points: 10_000_000, ..Settings::default() };
         let p = memory_plan(5_000_000, false, &s, &cfg(), &device(128 << 20));
-        // X holds 2n pairs of 32 f32: n ≤ 128 MiB / 256 B.
+        // X holds 4n pairs (each point, its offset, two across the surface) of 32 f32:
+        // n ≤ 128 MiB / 512 B; without the pairs across, 2n pairs and twice the points.
+        assert_eq!(p.n, (128 << 20) / 512);
+        assert!(p.actions[0].starts_with("subsample to 262144 points"), "{:?}", p.actions);
+        let p = memory_plan(5_000_000, false, &Settings { across: None, ..s }, &cfg(), &device(128 << 20));
         assert_eq!(p.n, (128 << 20) / 256);
-        assert!(p.actions[0].starts_with("subsample to 524288 points"), "{:?}", p.actions);
         assert!(p.stages.iter().all(|s| s.largest_binding <= p.binding_limit), "{:?}", p.stages);
     }
 

@@ -372,6 +372,7 @@ pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String>
             prior_mean: crate::settings::PriorMean::Zero,
             near_k: None,
             extra_pairs: None,
+            across: None,
             fit: false,
             outliers: None,
             min_support: None,
@@ -381,14 +382,14 @@ pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String>
         "nkrr-prior-mean" => Settings { prior_mean: crate::settings::PriorMean::Network, ..nkrr },
         "nkrr-position" => Settings { position: true, ..nkrr },
         "nkrr-position-prior-mean" => Settings { position: true, prior_mean: crate::settings::PriorMean::Network, ..nkrr },
-        "nkrr-across" => Settings { across: Some(0.5), ..nkrr },
+        "nkrr-no-across" => Settings { across: None, ..nkrr },
         "nkrr-keep-outliers" => Settings { outliers: None, min_support: None, ..nkrr },
         "network-keep-outliers" => Settings { method: Method::Network, outliers: None, min_support: None, ..base.clone() },
         s => match s.strip_prefix("nkrr-m").and_then(|m| m.parse::<usize>().ok()).filter(|&m| m > 0) {
             Some(m) => Settings { m, ..nkrr },
             None => {
                 return Err(format!(
-                    "unknown method '{s}' (expected network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-paper, nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-position, nkrr-position-prior-mean, nkrr-across, nkrr-keep-outliers or nkrr-m<N>)"
+                    "unknown method '{s}' (expected network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-paper, nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-position, nkrr-position-prior-mean, nkrr-no-across, nkrr-keep-outliers or nkrr-m<N>)"
                 ))
             }
         },
