@@ -57,7 +57,14 @@ def main(argv=None):
           f"{args.get('pts_min')}–{args.get('pts_max')} surface points (log-uniform, one size per batch), "
           f"Gaussian noise sigma ~ U(0, {args.get('noise_max')}), random cube symmetry, renormalised by "
           f"the noisy cloud's bounding box; {args.get('n_query')} queries (half uniform in "
-          "[-0.55, 0.55]^3, half surface + N(0, 0.01^2) or N(0, 0.05^2)), BCE with logits.",
+          + ("[-0.55, 0.55]^3, half surface + N(0, 0.01^2) or N(0, 0.05^2)), BCE with logits."
+             if args.get("shape_kind", 1) == 1 else
+             "[-0.55, 0.55]^3, half surface + N(0, s^2), s one of 0.005, 0.01, 0.05 in equal parts), BCE with "
+             f"logits. Shape stream {args.get('shape_kind')} (`training/shapes.py` STREAMS: the first prior's "
+             "families and surfaces of revolution, tubes, thin flaps, machined parts); degraded clouds: "
+             f"{args.get('aug_falloff', 0):.0%} with a density falloff of up to 60x along a random direction, "
+             f"{args.get('aug_outliers', 0):.0%} with up to 10 % stray points, {args.get('aug_onesided', 0):.0%} "
+             "seen from one side (`training/data.py` Scan)."),
           f"- Held-out: {args.get('heldout')} shapes from a separate seed space, 3000 points, noise 0.005, "
           "IoU on 10k uniform points (logit > 0), mean over shapes.", ""]
     if train:
