@@ -461,15 +461,21 @@ def _frame_y_to(u):
     return np.stack([a, u, b], 1).astype(F)
 
 
+def _on_body(rng, body, lo, hi):
+    """A random unit direction u and the point lo-hi of the way to an ellipsoid body's surface
+    along it (scaled by its semi-axes): where a limb, ear or flap is attached."""
+    u = rng.normal(size=3)
+    u /= np.linalg.norm(u)
+    return u, u * body * _u(rng, lo, hi)
+
+
 def fam_blob(rng):
     """Organic shapes: a body with limbs, head and bumps, blended by smooth unions (animals,
     figurines, scanned objects are smooth where CSG is sharp)."""
     body = np.array([_u(rng, 0.2, 0.42), _u(rng, 0.12, 0.3), _u(rng, 0.12, 0.3)])
     ops = [("u", Prim("ellipsoid", (list(body),), (0, 0, 0), rot_matrix(rng, "yaw")))]
     for _ in range(int(rng.integers(2, 9))):
-        u = rng.normal(size=3)
-        u /= np.linalg.norm(u)
-        at = u * body * _u(rng, 0.6, 1.0)
+        u, at = _on_body(rng, body, 0.6, 1.0)
         k = _u(rng, 0.02, 0.1)
         r = rng.random()
         if r < 0.5:  # limb
@@ -551,9 +557,7 @@ def fam_flaps(rng):
     body = np.array([_u(rng, 0.12, 0.35), _u(rng, 0.1, 0.3), _u(rng, 0.1, 0.3)])
     ops = [("u", Prim("ellipsoid", (list(body),), (0, 0, 0), rot_matrix(rng, "yaw")))]
     for _ in range(int(rng.integers(1, 5))):
-        u = rng.normal(size=3)
-        u /= np.linalg.norm(u)
-        at = u * body * _u(rng, 0.7, 1.0)
+        u, at = _on_body(rng, body, 0.7, 1.0)
         thick = _u(rng, 0.01, 0.022)
         if rng.random() < 0.6:  # an ear or leaf: a flat ellipsoid reaching outwards
             a, c = _u(rng, 0.08, 0.22), _u(rng, 0.05, 0.15)
