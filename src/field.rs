@@ -13,6 +13,7 @@ use std::cell::RefCell;
 use crate::gpu::{Gpu, GpuError};
 use crate::krr::{self, KrrError, LengthScaleInit, TuneSettings};
 use crate::net::{GpuNet, GpuPlanes};
+use crate::orient;
 use crate::settings::{Method, PriorMean, SelectBy, Settings};
 
 /// Octaves of the coordinate encoding used by the "w/o features" ablation: x, and
@@ -198,19 +199,24 @@ pub async fn training_pairs(
     let extra = crate::sample::upsample(points, &offsets, 2);
     let mut all = points.to_vec();
     all.extend_from_slice(&extra);
-    let normals = settings.across.map(|_| crate::orient::pca_normals(points, crate::orient::NEIGHBOURS));
-    if let (Some(f), Some(normals)) = (settings.across, &normals) {
-        let spacing = crate::sample::kth_neighbour_distance(points, offsets.near_k.unwrap_or(crate::orient::NEIGHBOURS));
-        let delta: Vec<f32> = spacing.iter().map(|d| f * d).collect();
-        all.extend(crate::orient::across(points, normals, &delta));
+    // The pairs across the surface (crate::orient): one neighbour search gives their normals,
+    // their offsets (the near scale's distance) and, below, the vote on their labels.
+    let across = settings.across.map(|f| {
+        let nb = orient::neighbourhoods(points, orient::NEIGHBOURS, offsets.near_k.unwrap_or(orient::NEIGHBOURS));
+        let normals = orient::pca_normals(points, &nb);
+        let delta: Vec<f32> = nb.spacing.iter().map(|d| f * d).collect();
+        (orient::across(points, &normals, &delta), normals, nb)
+    });
+    if let Some((pairs, _, _)) = &across {
+        all.extend_from_slice(pairs);
     }
     let (features, logits) = net.decode(planes, &all).await?;
     let clip = settings.label_clip.unwrap_or(f32::INFINITY);
     let mut y = targets(&logits, points.len(), clip, settings.prior_mean);
-    if let Some(normals) = &normals {
-        // The pairs across the surface: their labels come from the orderings (crate::orient).
+    if let Some((_, normals, nb)) = &across {
+        // Their labels come from the orderings, not from the logits' signs.
         let start = points.len() + extra.len();
-        let labels = crate::orient::across_targets(points, normals, &logits[start..], crate::orient::NEIGHBOURS, crate::orient::FLOOR, clip);
+        let labels = orient::across_targets(normals, nb, &logits[start..], orient::FLOOR, clip);
         for (i, l) in labels.into_iter().enumerate() {
             y[start + i] = match settings.prior_mean {
                 PriorMean::Zero => l,

@@ -21,22 +21,53 @@ pub const NEIGHBOURS: usize = 10;
 /// 0.73, clearly on one side without overruling what the network says with more confidence.
 pub const FLOOR: f32 = 1.0;
 
-/// Unit normals (unoriented) of each point: the least-spread direction of its `k` nearest
-/// points (itself included); (0, 0, 1) where they do not define one.
-pub fn pca_normals(points: &[[f32; 3]], k: usize) -> Vec<[f32; 3]> {
+/// Each point's `k` nearest points (itself included) and its distance to its `rank`-th nearest
+/// other point, from one search: the normals, the vote and the offsets all read it.
+pub struct Neighbourhoods {
+    k: usize,
+    /// `k` indices per point (k at most the point count), nearest first.
+    near: Vec<u32>,
+    /// Distance to the `rank`-th nearest other point: [`crate::sample::kth_neighbour_distance`]'s.
+    pub spacing: Vec<f32>,
+}
+
+impl Neighbourhoods {
+    fn of(&self, i: usize) -> &[u32] {
+        &self.near[i * self.k..(i + 1) * self.k]
+    }
+}
+
+/// One k-nearest search over `points` for [`Neighbourhoods`]: the `rank`-th other point is the
+/// `rank`-th after the point itself, so a search for max(k, rank + 1) serves both.
+pub fn neighbourhoods(points: &[[f32; 3]], k: usize, rank: usize) -> Neighbourhoods {
     let index = PointIndex::new(points);
-    let mut near = Vec::with_capacity(k);
-    points
-        .iter()
-        .map(|&p| {
-            index.k_nearest(p, k, &mut near);
+    let reach = k.max(rank + 1);
+    let k = k.min(points.len());
+    let rank = rank.clamp(1, points.len().saturating_sub(1).max(1));
+    let mut found = Vec::with_capacity(reach);
+    let mut near = Vec::with_capacity(points.len() * k);
+    let mut spacing = Vec::with_capacity(points.len());
+    for &p in points {
+        index.k_nearest(p, reach, &mut found);
+        near.extend(found[..k].iter().map(|&(_, j)| j));
+        spacing.push(found.get(rank).map_or(0.0, |&(d2, _)| d2.sqrt()));
+    }
+    Neighbourhoods { k, near, spacing }
+}
+
+/// Unit normals (unoriented) of each point: the least-spread direction of its neighbourhood
+/// (itself included); (0, 0, 1) where it does not define one.
+pub fn pca_normals(points: &[[f32; 3]], nb: &Neighbourhoods) -> Vec<[f32; 3]> {
+    (0..points.len())
+        .map(|i| {
+            let near = nb.of(i);
             let n = near.len() as f64;
             let mut c = [0.0f64; 3];
-            for &(_, j) in &near {
+            for &j in near {
                 (0..3).for_each(|a| c[a] += points[j as usize][a] as f64 / n);
             }
             let mut cov = [[0.0f64; 3]; 3];
-            for &(_, j) in &near {
+            for &j in near {
                 let d = [0, 1, 2].map(|a| points[j as usize][a] as f64 - c[a]);
                 for r in 0..3 {
                     for s in 0..3 {
@@ -67,27 +98,18 @@ pub fn across(points: &[[f32; 3]], normals: &[[f32; 3]], delta: &[f32]) -> Vec<[
 }
 
 /// Labels of the points made by [`across`], from the network's `logits` there (same order):
-/// each point's side is the vote of its `k` nearest points' orderings (each one's logit
-/// difference, its sign turned to agree with p's normal); the inner point gets at least +`floor`,
-/// the outer at most −`floor`, both within ±`clip`. Where the vote is a tie, the logits stay.
-pub fn across_targets(
-    points: &[[f32; 3]],
-    normals: &[[f32; 3]],
-    logits: &[f32],
-    k: usize,
-    floor: f32,
-    clip: f32,
-) -> Vec<f32> {
+/// each point's side is the vote of its neighbourhood's orderings (each one's logit difference,
+/// its sign turned to agree with p's normal); the inner point gets at least +`floor`, the outer
+/// at most −`floor`, both within ±`clip`. Where the vote is a tie, the logits stay.
+pub fn across_targets(normals: &[[f32; 3]], nb: &Neighbourhoods, logits: &[f32], floor: f32, clip: f32) -> Vec<f32> {
     // d_i > 0: the −n side is the more inside one.
-    let order: Vec<f32> = (0..points.len()).map(|i| logits[2 * i + 1] - logits[2 * i]).collect();
-    let index = PointIndex::new(points);
-    let mut near = Vec::with_capacity(k);
+    let order: Vec<f32> = (0..normals.len()).map(|i| logits[2 * i + 1] - logits[2 * i]).collect();
     let mut out = Vec::with_capacity(logits.len());
-    for (i, &p) in points.iter().enumerate() {
-        index.k_nearest(p, k, &mut near);
-        let vote: f32 = near
+    for i in 0..normals.len() {
+        let vote: f32 = nb
+            .of(i)
             .iter()
-            .map(|&(_, j)| {
+            .map(|&j| {
                 let nj = normals[j as usize];
                 let dot = (0..3).map(|a| nj[a] * normals[i][a]).sum::<f32>();
                 // A neighbour's ordering counts by its size (a clear one outweighs noise) and
@@ -128,7 +150,8 @@ mod tests {
     #[test]
     fn pca_normals_are_radial_on_a_sphere() {
         let pts = sphere(2000, 0.3);
-        for (p, n) in pts.iter().zip(pca_normals(&pts, NEIGHBOURS)) {
+        let nb = neighbourhoods(&pts, NEIGHBOURS, NEIGHBOURS);
+        for (p, n) in pts.iter().zip(pca_normals(&pts, &nb)) {
             let cos = (0..3).map(|a| p[a] * n[a]).sum::<f32>().abs() / 0.3;
             assert!(cos > 0.99, "normal {n:?} at {p:?}");
         }
@@ -146,11 +169,12 @@ mod tests {
                 pts.push([x + 0.005, y + 0.005, -0.01]);
             }
         }
-        let normals = pca_normals(&pts, NEIGHBOURS);
+        let nb = neighbourhoods(&pts, NEIGHBOURS, NEIGHBOURS);
+        let normals = pca_normals(&pts, &nb);
         let delta = vec![0.004; pts.len()];
         let q = across(&pts, &normals, &delta);
         let logits: Vec<f32> = q.iter().map(|p| -3.0 - 100.0 * p[2].abs()).collect();
-        let y = across_targets(&pts, &normals, &logits, NEIGHBOURS, FLOOR, 4.0);
+        let y = across_targets(&normals, &nb, &logits, FLOOR, 4.0);
         for (i, p) in q.iter().enumerate() {
             // Inside the plate: |z| < 0.01.
             let inside = p[2].abs() < 0.01;
@@ -162,12 +186,13 @@ mod tests {
     #[test]
     fn the_vote_overrules_one_point_whose_ordering_is_wrong() {
         let pts = sphere(500, 0.3);
-        let normals = pca_normals(&pts, NEIGHBOURS);
+        let nb = neighbourhoods(&pts, NEIGHBOURS, NEIGHBOURS);
+        let normals = pca_normals(&pts, &nb);
         let q = across(&pts, &normals, &vec![0.01; pts.len()]);
         // A good network: logit 10 (0.3 − |q|); one point's pair swapped.
         let mut logits: Vec<f32> = q.iter().map(|p| 10.0 * (0.3 - (0..3).map(|a| p[a] * p[a]).sum::<f32>().sqrt())).collect();
         logits.swap(20, 21);
-        let y = across_targets(&pts, &normals, &logits, NEIGHBOURS, FLOOR, 4.0);
+        let y = across_targets(&normals, &nb, &logits, FLOOR, 4.0);
         for (i, p) in q.iter().enumerate() {
             let inside = (0..3).map(|a| p[a] * p[a]).sum::<f32>().sqrt() < 0.3;
             assert_eq!(y[i] > 0.0, inside, "point {i} {p:?} label {}", y[i]);
