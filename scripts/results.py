@@ -660,6 +660,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
         w("| cloud | method | CD1 x100 | F-score | NC | nkrr beats SPSR on CD1 / F |"
           + (" nkrr beats iPSR on CD1 / F |" if hipsr else ""))
         w("|---|---|---|---|---|---|" + ("---|" if hipsr else ""))
+        total = {peer: [0, 0] for peer in hpeers}  # clouds where nkrr wins CD1, F, over all kinds
         for kind in HARD_KINDS:
             krows = [r for r in hrows if r["size"] == kind]
             for m in ["network", "network-keep-outliers", "nkrr", "nkrr-keep-outliers"] + hpeers:
@@ -670,17 +671,16 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
                     for peer in hpeers:
                         c = wins(krows, "nkrr", peer, hshapes, "cd1x100", True)
                         f = wins(krows, "nkrr", peer, hshapes, "fscore", False)
+                        total[peer][0] += c[0]
+                        total[peer][1] += f[0]
                         extra.append(f"{c[0]}/{c[1]} / {f[0]}/{f[1]}")
                 w(f"| {kind} | {LABEL.get(m, m)} | {fmt(mm[0])} | {fmt(mm[1])} | {fmt(mm[2])} | {' | '.join(extra)} |")
-        allc = sum(wins([r for r in hrows if r["size"] == k], "nkrr", "spsr", hshapes, "cd1x100", True)[0] for k in HARD_KINDS)
-        allf = sum(wins([r for r in hrows if r["size"] == k], "nkrr", "spsr", hshapes, "fscore", False)[0] for k in HARD_KINDS)
         n = len(HARD_KINDS) * len(hshapes)
-        w(f"\nOver all {n} harder clouds nkrr beats screened Poisson on CD1 on {allc} and on F-score on {allf}. "
-          "Per-cloud rows: `target/results/hard-eval.md` and `target/results/hard/spsr/spsr.jsonl`.\n")
+        w(f"\nOver all {n} harder clouds nkrr beats screened Poisson on CD1 on {total['spsr'][0]} and on F-score on "
+          f"{total['spsr'][1]}. Per-cloud rows: `target/results/hard-eval.md` and `target/results/hard/spsr/spsr.jsonl`.\n")
         if hipsr:
-            ic = sum(wins([r for r in hrows if r["size"] == k], "nkrr", "ipsr", hshapes, "cd1x100", True)[0] for k in HARD_KINDS)
-            jf = sum(wins([r for r in hrows if r["size"] == k], "nkrr", "ipsr", hshapes, "fscore", False)[0] for k in HARD_KINDS)
-            w(f"Against iPSR (as above): nkrr's CD1 is lower on {ic} and its F-score higher on {jf} of the {n}.\n")
+            w(f"Against iPSR (as above): nkrr's CD1 is lower on {total['ipsr'][0]} and its F-score higher on "
+              f"{total['ipsr'][1]} of the {n}.\n")
     else:
         w("Not run (phase `hard`).\n")
 
