@@ -22,8 +22,7 @@ import numpy as np
 import torch
 
 from .data import CACHE, Scan, heldout_set
-from .export import load_weights
-from .model import Config, ConvONet
+from .export import load_ckpt, load_weights
 
 SETS = {
     "clean": dict(kind=2),
@@ -34,12 +33,7 @@ SETS = {
 
 
 def load(path):
-    if path.endswith(".safetensors"):
-        return load_weights(path)[0]
-    st = torch.load(path, weights_only=False, map_location="cpu")
-    m = ConvONet(Config(**st["config"]))
-    m.load_state_dict(st["model"])
-    return m.eval()
+    return load_weights(path)[0] if path.endswith(".safetensors") else load_ckpt(path)[0]
 
 
 def rotations():

@@ -171,16 +171,20 @@ def _draw_points(shape, rng, n_pts, scan):
     return surf[idx].astype(np.float32)
 
 
+def _stray(pts, rng, k):
+    """Replaces k of `pts` (in place) by points uniform in their box enlarged by 5 % a side."""
+    lo, hi = pts.min(0), pts.max(0)
+    pad = 0.05 * (hi - lo)
+    pts[rng.choice(len(pts), k, replace=False)] = rng.uniform(lo - pad, hi + pad, (k, 3))
+
+
 def make_sample(shape, rng, n_pts, sigma, n_q=2048, frac_uni=0.5, augment=True, scan=None):
     pts = _draw_points(shape, rng, n_pts, scan or Scan())
     pts += rng.normal(size=pts.shape).astype(np.float32) * sigma
     if scan is not None and scan.outliers and rng.random() < scan.outliers:
         # stray points (flying pixels, reflections): a share of the cloud replaced by points
         # uniform in its box, a little enlarged
-        k = int(round(len(pts) * rng.uniform(0, scan.outliers_max)))
-        lo, hi = pts.min(0), pts.max(0)
-        pad = 0.05 * (hi - lo)
-        pts[rng.choice(len(pts), k, replace=False)] = rng.uniform(lo - pad, hi + pad, (k, 3))
+        _stray(pts, rng, int(round(len(pts) * rng.uniform(0, scan.outliers_max))))
     nu = int(round(n_q * frac_uni))
     iu = rng.integers(0, len(shape["quni"]), nu)
     inr = rng.integers(0, len(shape["qnear"]), n_q - nu)
@@ -226,10 +230,7 @@ def heldout_set(n=32, n_pts=3000, sigma=0.005, n_q=10000, cache=CACHE, kind=2, s
             pts = _draw_points(s, rng, n_pts, scan)
         pts += rng.normal(size=(n_pts, 3)).astype(np.float32) * sigma
         if scan is not None and scan.outliers:
-            k = int(round(n_pts * scan.outliers_max))
-            lo, hi = pts.min(0), pts.max(0)
-            pad = 0.05 * (hi - lo)
-            pts[rng.choice(n_pts, k, replace=False)] = rng.uniform(lo - pad, hi + pad, (k, 3))
+            _stray(pts, rng, int(round(n_pts * scan.outliers_max)))
         iu = rng.choice(len(s["quni"]), n_q, replace=False)
         q = s["quni"][iu].astype(np.float32)
         y = s["occ_uni"][iu]
