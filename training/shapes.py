@@ -669,25 +669,22 @@ class Degenerate(Exception):
 # its held-out IoU stays comparable); kind 3 trains and kind 4 holds out the second stream
 # (issue 14 item 6): the new families beside the old ones, and a third near-surface band at
 # 0.005, where the mesh is decided.
-STREAMS = {1: ("v1", (0.01, 0.05)), 2: ("v1", (0.01, 0.05)),
-           3: ("v2", (0.005, 0.01, 0.05)), 4: ("v2-only", (0.005, 0.01, 0.05))}
+STREAMS = {1: (FAMILIES, (0.01, 0.05)), 2: (FAMILIES, (0.01, 0.05)),
+           3: (FAMILIES + FAMILIES_V2, (0.005, 0.01, 0.05)), 4: (FAMILIES_V2, (0.005, 0.01, 0.05))}
 
 
 def _stream(kind):
-    """The stream of a seed space; any other kind (tests use their own) follows the first recipe."""
+    """(families, near-surface bands) of a seed space; any other kind (tests use their own)
+    follows the first recipe."""
     return STREAMS.get(kind, STREAMS[1])
-
-
-def stream_families(kind):
-    name = _stream(kind)[0]
-    return {"v1": FAMILIES, "v2": FAMILIES + FAMILIES_V2, "v2-only": FAMILIES_V2}[name]
 
 
 def build(seed, kind=1, grid=128, n_surf=30000, n_uni=32000, n_near=32000, near_sigmas=None):
     """Generate one shape; raises Degenerate if it is unusable."""
     rng = np.random.default_rng([kind, seed])
-    near_sigmas = _stream(kind)[1] if near_sigmas is None else near_sigmas
-    sh = random_program(rng, stream_families(kind))
+    families, bands = _stream(kind)
+    near_sigmas = bands if near_sigmas is None else near_sigmas
+    sh = random_program(rng, families)
     # 1. coarse bounds: all points within ~1 coarse voxel of the surface or inside
     lo, hi = np.full(3, -2.5, F), np.full(3, 2.5, F)
     nc = 40
