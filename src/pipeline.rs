@@ -10,7 +10,7 @@ use crate::cloud::{subsample, CloudError, Normalization, PointCloud};
 use crate::field::{self, Field, FitError, TuningSummary};
 use crate::gpu::{now, Gpu, GpuError};
 use crate::krr::KrrError;
-use crate::mesh::fit::{FitOptions, FitReport};
+use crate::mesh::fit::FitReport;
 use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, ExtractStats, FieldError, Mesh, TrimReport};
 use crate::net::{GpuNet, NetError, Weights};
 use crate::plan::{DeviceFacts, MemoryPlan};
@@ -252,8 +252,9 @@ impl Engine {
         // Fitted and trimmed in the unit cube, against the points the network saw.
         let fit = settings.fit.then(|| {
             let t = now();
-            let r = crate::mesh::fit::fit_to_points(&mut mesh, &points, &FitOptions::for_points(points.len()));
+            let r = crate::mesh::fit::fit_cloud(&mut mesh, &points, settings.fit_noise);
             timings.push(("fit", now() - t));
+            notices.extend(r.notice());
             r
         });
         let trim = settings.trim.map(|factor| {

@@ -100,6 +100,7 @@ pub struct Settings {
     pub max_error: Option<f32>,
     pub glb: Compression,
     pub fit: bool,
+    pub fit_noise: bool,
     pub colors: bool,
     pub units: Option<Units>,
 }
@@ -154,6 +155,7 @@ impl Default for Settings {
             max_error: None,
             glb: Compression::None,
             fit: false,
+            fit_noise: false,
             colors: false,
             units: None,
         };
@@ -525,6 +527,18 @@ pub static TABLE: &[Setting] = &[
         default: Value::Bool(true),
         get: |s| Value::Bool(s.fit),
         set: |s, v| s.fit = flag(v),
+        ..BASE
+    },
+    Setting {
+        key: "fitNoise",
+        flag: "--no-fit-noise",
+        label: "Fit follows the noise",
+        help: "on a cloud noisier than usual scans, the last fit averages over more points (as many more as the noise's variance is larger); off keeps the neighbourhood set by the point count alone",
+        kind: Kind::Switch,
+        default: Value::Bool(true),
+        advanced: true,
+        get: |s| Value::Bool(s.fit_noise),
+        set: |s, v| s.fit_noise = flag(v),
         ..BASE
     },
     Setting {

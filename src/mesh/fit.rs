@@ -34,6 +34,33 @@ pub struct FitReport {
     /// repair (see [`fit_to_points`]).
     pub flipped: usize,
     pub flipped_after_repair: usize,
+    /// Neighbours each vertex's plane was fitted to.
+    pub neighbours: usize,
+    /// When the cloud was noisier than the clean eval clouds: its noise ([`noise_level`]) and
+    /// the neighbours [`FitOptions::for_points`] would have used for its point count.
+    pub widened: Option<(f64, usize)>,
+}
+
+impl FitReport {
+    /// A line for the user when the neighbourhood was widened for noise.
+    pub fn notice(&self) -> Option<String> {
+        self.widened.map(|(noise, usual)| {
+            format!(
+                "the cloud is noisy (its points lie about {noise:.4} x its longest side off their local planes): the last fit averages over \
+                 {} points instead of {usual}",
+                self.neighbours
+            )
+        })
+    }
+}
+
+/// The last fit as the pipeline runs it: [`FitOptions::for_cloud`], then [`fit_to_points`].
+pub fn fit_cloud(mesh: &mut Mesh, points: &[[f32; 3]], follow_noise: bool) -> FitReport {
+    let (opts, noise) = FitOptions::for_cloud(points, follow_noise);
+    let usual = FitOptions::for_points(points.len()).k;
+    let mut report = fit_to_points(mesh, points, &opts);
+    report.widened = (opts.k > usual).then_some((noise, usual));
+    report
 }
 
 /// How the fit chooses its neighbourhoods.
@@ -64,6 +91,101 @@ impl FitOptions {
         let smoothing = (10.0 - 7.7 * (n.log10() - 500f64.log10())).round().clamp(0.0, 12.0) as usize;
         FitOptions { k, scale: (0.45 + 0.1 * t) as f32, max_distance: 3.0, smoothing }
     }
+
+    /// [`FitOptions::for_points`] for `points`, with the neighbourhood widened where the cloud
+    /// is noisier than the eval clouds those rules were chosen on (noise σ 0.005, see
+    /// [`CLEAN_NOISE`]). A plane fitted to k points with noise σ is off by about σ/√k: with the
+    /// noise `r` times the clean clouds' (as [`noise_level`] measures it), r²·k points keep that
+    /// error where the rules left it. Chosen on noisy clouds of cow, fandisk and suzanne (σ 0.01,
+    /// 0.015, 0.02 at 3k and 10k; the smoothing rounds were not changed); clean clouds fall below
+    /// the threshold and keep the rules as they were. Also returns the noise measured.
+    pub fn for_cloud(points: &[[f32; 3]], follow_noise: bool) -> (FitOptions, f64) {
+        let mut o = FitOptions::for_points(points.len());
+        if !follow_noise {
+            return (o, 0.0);
+        }
+        let noise = noise_level(points);
+        let ratio = (noise / clean_noise(points.len())).powi(2);
+        if ratio > 1.0 {
+            o.k = ((o.k as f64 * ratio).round() as usize).clamp(o.k, MAX_NEIGHBOURS.max(o.k));
+        }
+        (o, noise)
+    }
+}
+
+/// The most neighbours a noisy cloud's fit averages over: beyond it the plane spans so much of
+/// the surface that it cuts across its curvature.
+const MAX_NEIGHBOURS: usize = 64;
+
+/// Points whose neighbourhoods [`noise_level`] looks at: a uniform stride through the cloud,
+/// enough for a stable median at a few milliseconds.
+const NOISE_SAMPLES: usize = 2000;
+/// Neighbours of each such point (itself included).
+const NOISE_NEIGHBOURS: usize = 10;
+
+/// The cloud's noise: the median over its points of the rms distance of each point's
+/// [`NOISE_NEIGHBOURS`] nearest to their own least-squares plane (√ of the smallest eigenvalue
+/// of their covariance), in the points' units. On a clean smooth surface that is the
+/// curvature's sag over a neighbourhood, small against the spacing; Gaussian noise of σ adds
+/// about σ·√((k − 3)/k). 0 for fewer than [`NOISE_NEIGHBOURS`] points.
+pub fn noise_level(points: &[[f32; 3]]) -> f64 {
+    if points.len() < NOISE_NEIGHBOURS {
+        return 0.0;
+    }
+    let index = PointIndex::new(points);
+    let stride = points.len().div_ceil(NOISE_SAMPLES).max(1);
+    let mut near = Vec::with_capacity(NOISE_NEIGHBOURS);
+    let mut rms: Vec<f64> = points
+        .iter()
+        .step_by(stride)
+        .filter_map(|&p| {
+            index.k_nearest(p, NOISE_NEIGHBOURS, &mut near);
+            let n = near.len() as f64;
+            let mut c = [0.0f64; 3];
+            for &(_, j) in &near {
+                (0..3).for_each(|a| c[a] += points[j as usize][a] as f64 / n);
+            }
+            let mut cov = [[0.0f64; 3]; 3];
+            for &(_, j) in &near {
+                let q = sub(points[j as usize].map(f64::from), c);
+                for a in 0..3 {
+                    for b in 0..3 {
+                        cov[a][b] += q[a] * q[b] / n;
+                    }
+                }
+            }
+            let (values, _) = crate::eigen3::symmetric(cov)?;
+            let least = values.iter().copied().fold(f64::INFINITY, f64::min);
+            least.is_finite().then(|| least.max(0.0).sqrt())
+        })
+        .collect();
+    if rms.is_empty() {
+        return 0.0;
+    }
+    let mid = rms.len() / 2;
+    *rms.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
+}
+
+/// [`noise_level`] of the clean eval clouds (noise σ 0.005) at the point counts the fit's
+/// neighbourhoods were chosen at, a little above the largest of the six shapes': below it,
+/// the cloud is no noisier than those.
+const CLEAN_NOISE: [(f64, f64); 3] = [(500.0, 0.013), (3000.0, 0.005), (10_000.0, 0.004)];
+
+/// [`CLEAN_NOISE`] at `n` points, linear in log n between its entries and constant beyond.
+fn clean_noise(n: usize) -> f64 {
+    let x = (n.max(1) as f64).ln();
+    let at = |i: usize| (CLEAN_NOISE[i].0.ln(), CLEAN_NOISE[i].1);
+    let (first, last) = (at(0), at(CLEAN_NOISE.len() - 1));
+    if x <= first.0 {
+        return first.1;
+    }
+    if x >= last.0 {
+        return last.1;
+    }
+    (1..CLEAN_NOISE.len())
+        .map(|i| (at(i - 1), at(i)))
+        .find(|(_, b)| x <= b.0)
+        .map_or(last.1, |(a, b)| a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0))
 }
 
 /// Moves `mesh`'s vertices onto the weighted least-squares planes of `points` (same
@@ -81,6 +203,7 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     let reach2 = (opts.max_distance as f64 * spacing).powi(2);
     let index = PointIndex::new(points);
     let k = opts.k.min(points.len());
+    report.neighbours = k;
     let mut near = Vec::with_capacity(k);
     // Each vertex's move onto its plane (zero where it stays).
     let mut moves: Vec<[f64; 3]> = Vec::with_capacity(mesh.positions.len());
@@ -377,6 +500,54 @@ mod tests {
             (o.k, o.smoothing)
         };
         assert_eq!([at(500), at(3000), at(10_000), at(1_000_000)], [(8, 10), (11, 4), (20, 0), (32, 0)]);
+    }
+
+    /// `n` points on the unit sphere's surface scaled to radius 0.4 (a cloud the size of the
+    /// unit cube), pushed along the radius by Gaussian noise of `sigma`; seeded.
+    fn noisy_sphere(n: usize, sigma: f64) -> Vec<[f32; 3]> {
+        let mut rng = crate::rng::SplitMix64(7);
+        let mut gauss = || rng.normal();
+        (0..n)
+            .map(|_| {
+                let d = [gauss(), gauss(), gauss()];
+                let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-12);
+                let r = 0.4 + sigma * gauss();
+                d.map(|x| (x / len * r) as f32)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_noise_level_grows_with_the_noise() {
+        let clean = noise_level(&noisy_sphere(3000, 0.0));
+        let some = noise_level(&noisy_sphere(3000, 0.005));
+        let more = noise_level(&noisy_sphere(3000, 0.02));
+        // Clean: only the sphere's sag over a 10-point patch (radius ~0.03): ~1e-3 at most.
+        assert!(clean < 1.5e-3, "{clean}");
+        // With noise it measures a fraction of sigma that falls as sigma nears the spacing (the
+        // neighbourhood's own extent), but it is ordered and well apart.
+        assert!(some > 2.0 * clean && some < 0.006, "{some}");
+        assert!(more > 1.6 * some && more < 0.02, "{more}");
+        assert_eq!(noise_level(&noisy_sphere(5, 0.01)), 0.0, "too few points to say");
+    }
+
+    #[test]
+    fn a_noisy_cloud_gets_a_wider_neighbourhood() {
+        let usual = FitOptions::for_points(3000);
+        let (clean, _) = FitOptions::for_cloud(&noisy_sphere(3000, 0.004), true);
+        assert_eq!(clean, usual, "at the eval clouds' noise the rules are unchanged");
+        let (noisy, noise) = FitOptions::for_cloud(&noisy_sphere(3000, 0.02), true);
+        let expected = ((usual.k as f64 * (noise / clean_noise(3000)).powi(2)).round() as usize).min(MAX_NEIGHBOURS);
+        assert!(noisy.k > 2 * usual.k && noisy.k == expected, "{} vs {} ({noise})", noisy.k, usual.k);
+        assert_eq!((noisy.smoothing, noisy.scale), (usual.smoothing, usual.scale));
+        let (off, _) = FitOptions::for_cloud(&noisy_sphere(3000, 0.02), false);
+        assert_eq!(off, usual, "--no-fit-noise keeps the point count's rule");
+        // The reference follows the point count between its entries, constant beyond.
+        assert_eq!(clean_noise(100), 0.013);
+        assert_eq!(clean_noise(1_000_000), 0.004);
+        assert!((clean_noise(3000) - 0.005).abs() < 1e-12);
+        let mid = clean_noise(1225); // √(500·3000): halfway in log n
+        assert!((mid - 0.009).abs() < 1e-5, "{mid}");
     }
 
     #[test]
