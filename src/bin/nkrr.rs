@@ -33,7 +33,7 @@ USAGE:
                  nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-m<N> (e.g. nkrr-m1000),
                  nkrr-paper (the paper's method: its tuning, pairs, no fit, no filters),
                  nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-keep-outliers,
-                 nkrr-position, nkrr-position-prior-mean, nkrr-no-across, nkrr-fit-fixed
+                 nkrr-position, nkrr-position-prior-mean, nkrr-no-across, nkrr-fit-noise
         --keep-meshes              also write PREFIX-NAME-SIZE-METHOD.glb
     nkrr bench [--sizes 3000,10000,50000] [--ms 500,1000] [reconstruct options]
                             per-stage times on a synthetic noisy torus (adapter printed)

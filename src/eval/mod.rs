@@ -357,7 +357,7 @@ pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String>
         "network-no-fit" => Settings { method: Method::Network, fit: false, ..base.clone() },
         "nkrr" => nkrr,
         "nkrr-no-fit" => Settings { fit: false, ..nkrr },
-        "nkrr-fit-fixed" => Settings { fit_noise: false, ..nkrr },
+        "nkrr-fit-noise" => Settings { fit_noise: true, ..nkrr },
         "nkrr-no-tune" => Settings { steps: 0, ..nkrr },
         "nkrr-no-theta" => Settings { tune_theta: false, ..nkrr },
         "nkrr-no-z" => Settings { tune_z: false, ..nkrr },
@@ -390,7 +390,7 @@ pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String>
             Some(m) => Settings { m, ..nkrr },
             None => {
                 return Err(format!(
-                    "unknown method '{s}' (expected network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-paper, nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-position, nkrr-position-prior-mean, nkrr-no-across, nkrr-keep-outliers, nkrr-fit-fixed or nkrr-m<N>)"
+                    "unknown method '{s}' (expected network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-paper, nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-position, nkrr-position-prior-mean, nkrr-no-across, nkrr-keep-outliers, nkrr-fit-noise or nkrr-m<N>)"
                 ))
             }
         },
