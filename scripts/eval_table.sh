@@ -9,8 +9,10 @@ size=${1:?size, e.g. 10k}; shift
 out=${EVAL_OUT:-target/eval}
 mkdir -p "$out"
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-$(mktemp -d)}
+# The default binary is brought up to date (a no-op when current): one left from an older commit
+# would print another commit's numbers. NKRR_BIN names a binary to use as it is.
+if [ -z "${NKRR_BIN:-}" ]; then cargo build --release --bin nkrr; fi
 bin=${NKRR_BIN:-target/release/nkrr}
-[ -x "$bin" ] || cargo build --release
 echo "| shape | CD1 x100 | F-score | NC | watertight | time (s) |"
 echo "| --- | --- | --- | --- | --- | --- |"
 for ply in tests/data/eval/*-"$size".ply; do

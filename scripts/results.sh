@@ -7,7 +7,7 @@
 #
 # Idempotent: each phase keeps its raw output in target/results/ (git-ignored) and is skipped when
 # that is already there, so a second run only rewrites the report (--fresh reruns everything).
-# Needs: target/release/nkrr (built here if missing or too old to have `eval`), the main .venv
+# Needs: target/release/nkrr (built here, or brought up to date), the main .venv
 # (trimesh, pillow: the 500-point clouds and the renders; scripts/setup.sh makes it) and
 # .venv-peers (Open3D for the SPSR peer, made by tests/peers/setup.sh) plus matplotlib pinned in
 # scripts/results-requirements.txt. About an hour from nothing on the 2-core dev machine; seconds once done.
@@ -16,10 +16,10 @@ cd "$(dirname "$0")/.."
 log() { printf '[results.sh %s] %s\n' "$(date -u +%H:%M:%S)" "$*" >&2; }
 start=$(date +%s)
 
-if ! { [ -x target/release/nkrr ] && target/release/nkrr --help 2>&1 | grep -q 'nkrr eval'; }; then
-    log "building target/release/nkrr"
-    cargo build --release --bin nkrr
-fi
+# Always through cargo (a no-op when the binary is current): a binary left from an older commit
+# would report another commit's defaults under this one's name.
+log "building target/release/nkrr (cargo: nothing to do when it is current)"
+cargo build --release --bin nkrr
 if ! .venv/bin/python -c 'import trimesh, PIL' 2>/dev/null; then
     log "making .venv (scripts/setup.sh)"
     scripts/setup.sh python
