@@ -74,6 +74,10 @@ pub enum CloudError {
     /// The points lie on one plane: their spread along the third principal axis is `ratio` of
     /// that along the first.
     Flat { ratio: f64 },
+    /// A line or a plane only because of `count` points far from the rest (the farthest
+    /// `distance` from the others' middle, in the cloud's units): without them the cloud has
+    /// a surface. Stray points the filter was told to keep (or that it could not judge).
+    FarPoints { count: usize, distance: f64, shape: &'static str },
 }
 
 impl std::fmt::Display for CloudError {
@@ -87,6 +91,12 @@ impl std::fmt::Display for CloudError {
                 f,
                 "all points lie on one line (whatever its direction: the spread across it is {ratio:.1e} of the spread \
                  along it): there is no surface to reconstruct"
+            ),
+            CloudError::FarPoints { count, distance, shape } => write!(
+                f,
+                "the cloud looks like {shape} only because of {count} point(s) far from the rest (the farthest \
+                 {distance:.3e} from the middle of the others); without them it has a surface: let the stray-point \
+                 filter drop them (--outliers 2, the default; the page's \"Drop stray points\") or remove them from the file"
             ),
             CloudError::Flat { ratio } => write!(
                 f,
@@ -154,6 +164,53 @@ pub fn principal_spread(points: &[[f32; 3]]) -> [f64; 3] {
     ev
 }
 
+/// Why `points` have no surface by their principal spreads (a line or a plane), if they have none.
+fn shape_error(points: &[[f32; 3]]) -> Option<CloudError> {
+    let spread = principal_spread(points);
+    if spread[0] > 0.0 {
+        let (second, third) = (spread[1] / spread[0], spread[2] / spread[0]);
+        if second <= FLAT_RATIO {
+            return Some(CloudError::Collinear { ratio: second });
+        }
+        if third <= FLAT_RATIO {
+            return Some(CloudError::Flat { ratio: third });
+        }
+    }
+    None
+}
+
+/// Where a line or a plane (`shape`) is so only because of a few far points (at most 1 % of
+/// the cloud, the farthest from its per-axis median), the error that says so; else None. A
+/// sphere with one stray point 1e7 away has its spread all along that point's direction, and
+/// "all points lie on one line" sent the user looking for the wrong problem.
+fn far_points(points: &[[f32; 3]], shape: &CloudError) -> Option<CloudError> {
+    let shape = match shape {
+        CloudError::Collinear { .. } => "a line",
+        CloudError::Flat { .. } => "a plane",
+        _ => return None,
+    };
+    let median = [0, 1, 2].map(|a| {
+        let mut v: Vec<f32> = points.iter().map(|p| p[a]).collect();
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f32::total_cmp).1 as f64
+    });
+    let dist = |p: &[f32; 3]| (0..3).map(|a| (p[a] as f64 - median[a]).powi(2)).sum::<f64>().sqrt();
+    let mut order: Vec<(f64, usize)> = points.iter().enumerate().map(|(i, p)| (dist(p), i)).collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let most = (points.len() / 100).max(1);
+    for count in 1..=most.min(points.len().saturating_sub(Normalization::MIN_POINTS)) {
+        let kept: Vec<[f32; 3]> = order[..points.len() - count].iter().map(|&(_, i)| points[i]).collect();
+        if shape_error(&kept).is_none() {
+            return Some(CloudError::FarPoints { count, distance: order[points.len() - 1].0, shape });
+        }
+        // Only a clear gap makes a point "far": stop where the next one is near the others.
+        if count < most && order[points.len() - 1 - count].0 < 10.0 * order[(points.len() - 1) / 2].0.max(f64::MIN_POSITIVE) {
+            return None;
+        }
+    }
+    None
+}
+
 /// The similarity that maps a cloud's positions (relative to its `origin`) to the network's
 /// unit cube (bounding-box centre at 0, longest side 1) and back, in f64.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -178,15 +235,8 @@ impl Normalization {
         if !(scale > 0.0 && scale.is_finite()) {
             return Err(CloudError::Degenerate);
         }
-        let spread = principal_spread(&cloud.positions);
-        if spread[0] > 0.0 {
-            let (second, third) = (spread[1] / spread[0], spread[2] / spread[0]);
-            if second <= FLAT_RATIO {
-                return Err(CloudError::Collinear { ratio: second });
-            }
-            if third <= FLAT_RATIO {
-                return Err(CloudError::Flat { ratio: third });
-            }
+        if let Some(e) = shape_error(&cloud.positions) {
+            return Err(far_points(&cloud.positions, &e).unwrap_or(e));
         }
         Ok(Normalization { center, scale })
     }

@@ -35,6 +35,23 @@ pub fn drop_stray(points: Vec<[f32; 3]>, ratio: f32) -> (Vec<[f32; 3]>, usize) {
     (points.into_iter().zip(keep).filter(|(_, k)| *k).map(|(p, _)| p).collect(), dropped)
 }
 
+/// A share of the points beyond which the filter is more likely wrong than the cloud: stray
+/// points are a few percent of a real scan (10 % in the harder eval clouds), and `--outliers 1`
+/// dropped half of a clean one.
+pub const LARGE_SHARE: f64 = 0.2;
+
+/// A warning when the filter dropped more than [`LARGE_SHARE`] of the `total` points, with the
+/// count and how to keep them; None otherwise (then [`notice`] says what went).
+pub fn warning(dropped: usize, total: usize, ratio: f32) -> Option<String> {
+    (dropped as f64 > LARGE_SHARE * total as f64).then(|| {
+        format!(
+            "the stray-point filter dropped {dropped} of {total} points ({:.0} %), far more than stray points usually are: \
+             if they are real, raise its ratio (now {ratio}; --outliers, \"Drop stray points\") or turn it off (--keep-outliers)",
+            100.0 * dropped as f64 / total.max(1) as f64
+        )
+    })
+}
+
 /// What the reconstruction tells the user when `dropped` points went (nothing when none did).
 pub fn notice(dropped: usize, ratio: f32) -> Option<String> {
     (dropped > 0).then(|| {

@@ -100,6 +100,9 @@ pub struct Reconstruction {
     /// What the simplification did, when [`Settings::triangles`] or [`Settings::max_error`] asked for it.
     pub simplify: Option<crate::mesh::simplify::SimplifyReport>,
     pub notices: Vec<String>,
+    /// What the user must not miss: a setting that did not apply, a filter that took a large
+    /// share of the points (the CLI prints them as warnings, the page first and marked).
+    pub warnings: Vec<String>,
     pub extract: ExtractStats,
     /// What the test-time tuning did (nkrr only).
     pub tuning: Option<TuningSummary>,
@@ -153,7 +156,12 @@ impl Engine {
     ) -> Result<Reconstruction, PipelineError> {
         let mut timings = Vec::new();
         let mut notices = Vec::new();
-        Normalization::of(cloud).map_err(PipelineError::Cloud)?; // too few points, or flat: refused first
+        let mut warnings = Vec::new();
+        // Too few points are refused first; the shape checks (a line, a plane) wait for the
+        // stray-point filter below: one stray point far away made a sphere "a line".
+        if cloud.len() < Normalization::MIN_POINTS {
+            return Err(PipelineError::Cloud(CloudError::TooFewPoints { count: cloud.len(), needed: Normalization::MIN_POINTS }));
+        }
         // The preflight's plan decides how many points and inducing points fit this adapter
         // (and, in the browser, the host budget); its actions become notices. The settings stay
         // what the user asked for.
@@ -171,8 +179,12 @@ impl Engine {
         if let Some(ratio) = settings.outliers {
             let t = now();
             let dropped;
+            let total = seen.len();
             (seen, dropped) = crate::outliers::drop_stray(seen, ratio);
-            notices.extend(crate::outliers::notice(dropped, ratio));
+            match crate::outliers::warning(dropped, total, ratio) {
+                Some(w) => warnings.push(w),
+                None => notices.extend(crate::outliers::notice(dropped, ratio)),
+            }
             timings.push(("outliers", now() - t));
         }
         let seen = PointCloud { positions: seen, origin: cloud.origin, normals: None, colors: None };
@@ -293,6 +305,6 @@ impl Engine {
             origin = origin.map(|c| c * s);
         }
         (progress.borrow_mut())(&Stage::Done);
-        Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, extract: extraction.stats, tuning, timings })
+        Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings })
     }
 }

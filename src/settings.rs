@@ -214,6 +214,8 @@ pub struct Setting {
     pub presets: &'static [(f64, &'static str)],
     /// Only meaningful with [`Method::Nkrr`] (the page hides it for the network).
     pub nkrr_only: bool,
+    /// Only meaningful for a GLB output (how the GLB stores the mesh).
+    pub glb_only: bool,
     /// Behind the page's "Advanced settings" (ablations, tuning knobs).
     pub advanced: bool,
     get: fn(&Settings) -> Value,
@@ -235,6 +237,7 @@ const BASE: Setting = Setting {
     aliases: &[],
     presets: &[],
     nkrr_only: false,
+    glb_only: false,
     advanced: false,
     get: |_| Value::Off,
     set: |_, _| {},
@@ -506,6 +509,7 @@ pub static TABLE: &[Setting] = &[
         help: "how the GLB stores the mesh: plain floats (any glTF reader), quantized (KHR_mesh_quantization, about half the size) or meshopt (quantized and EXT_meshopt_compression, about a tenth; three.js, Babylon.js, model-viewer)",
         kind: Kind::Choice(&[("plain", "plain floats"), ("quantized", "quantized"), ("meshopt", "meshopt-compressed")]),
         default: Value::Choice("plain"),
+        glb_only: true,
         get: |s| Value::Choice(match s.glb {
             Compression::None => "plain",
             Compression::Quantized => "quantized",
@@ -854,6 +858,57 @@ impl Setting {
         };
         format!("        {head:<26} {turns}{}{range}{extra}{default}", self.help)
     }
+}
+
+/// A setting asked for (a value other than its default) that the run will not use: a
+/// regression setting with the network alone, a GLB setting for another output. [`unused`] is
+/// the one rule; the CLI warns of each before any work, the page and the JS API in the run's
+/// warnings.
+#[derive(Clone, Copy)]
+pub struct Unused {
+    pub setting: &'static Setting,
+    pub value: Value,
+    /// What it needs that the run does not have.
+    pub needs: &'static str,
+}
+
+impl Unused {
+    /// In the CLI's words: "--m 1000 has no effect: it needs --method nkrr".
+    pub fn cli(&self) -> String {
+        let value = match self.setting.kind {
+            Kind::Switch => String::new(),
+            _ => format!(" {}", value_text(self.value)),
+        };
+        format!("{}{value} has no effect and is ignored: it needs {}", self.setting.flag, self.needs)
+    }
+
+    /// In the page's words, by the form's label.
+    pub fn page(&self) -> String {
+        format!("“{}” ({}) has no effect and is ignored: it needs {}", self.setting.label, value_text(self.value), self.needs)
+    }
+}
+
+/// The settings of `s` that differ from their defaults but do not apply to its method or to
+/// the `output` format (None: every format is offered, as on the page).
+pub fn unused(s: &Settings, output: Option<crate::io::mesh_out::MeshFormat>) -> Vec<Unused> {
+    use crate::io::mesh_out::MeshFormat;
+    TABLE
+        .iter()
+        .filter_map(|def| {
+            let value = def.get(s);
+            if value == def.default {
+                return None;
+            }
+            let needs = if def.nkrr_only && s.method != Method::Nkrr {
+                "the nkrr method (--method nkrr)"
+            } else if def.glb_only && output.is_some_and(|f| f != MeshFormat::Glb) {
+                "a .glb output"
+            } else {
+                return None;
+            };
+            Some(Unused { setting: def, value, needs })
+        })
+        .collect()
 }
 
 /// A value as text (the form the CLI and links take).

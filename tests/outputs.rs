@@ -115,6 +115,57 @@ fn bad_output_paths_are_refused_before_any_work() {
     assert!(took < Duration::from_secs(5), "took {took:?}");
 }
 
+/// `reconstruct IN -o OUT` with OUT naming IN in some way: refused before any work, IN
+/// byte-identical, the error naming the input.
+fn input_kept(input: &std::path::Path, output: &str, original: &[u8]) {
+    let (code, _, err, _) = run(Command::new(BIN).args(["reconstruct", &input.to_string_lossy(), "-o", output, "--method", "network"]));
+    assert_eq!(code, 1, "{output}: {err}");
+    assert!(err.contains("is the input") || err.contains("same file as the input"), "{output}: {err}");
+    assert!(!err.contains("read ") && !err.contains("GPU:"), "{output}: work was done: {err}");
+    assert_eq!(std::fs::read(input).unwrap(), original, "{output}: the input changed");
+}
+
+#[cfg(unix)]
+#[test]
+fn an_output_naming_the_input_is_refused_and_the_input_kept() {
+    let d = folder("input-is-output");
+    let original = std::fs::read(eval("spot-3k.ply")).unwrap();
+    let cloud = d.join("in.ply");
+    std::fs::write(&cloud, &original).unwrap();
+    input_kept(&cloud, &cloud.to_string_lossy(), &original);
+    input_kept(&cloud, &d.join(".").join("in.ply").to_string_lossy(), &original);
+    std::os::unix::fs::symlink(&cloud, d.join("link.ply")).unwrap();
+    input_kept(&cloud, &d.join("link.ply").to_string_lossy(), &original);
+    input_kept(&d.join("link.ply"), &cloud.to_string_lossy(), &original);
+    std::fs::hard_link(&cloud, d.join("hard.ply")).unwrap();
+    input_kept(&cloud, &d.join("hard.ply").to_string_lossy(), &original);
+    // A PLY cloud whose name says mesh: read by its content, and still not overwritten.
+    for ext in ["glb", "obj", "stl"] {
+        let named = d.join(format!("x.{ext}"));
+        std::fs::write(&named, &original).unwrap();
+        input_kept(&named, &named.to_string_lossy(), &original);
+    }
+    // eval: a kept mesh or report that would land on a cloud it reads.
+    let data = d.join("data");
+    std::fs::create_dir(&data).unwrap();
+    std::fs::copy(eval("spot.obj"), data.join("spot.obj")).unwrap();
+    std::fs::write(data.join("spot-3k.ply"), &original).unwrap();
+    std::os::unix::fs::symlink(data.join("spot-3k.ply"), d.join("r.json")).unwrap();
+    let (code, _, err, _) = run(Command::new(BIN).args([
+        "eval",
+        &data.to_string_lossy(),
+        "--sizes",
+        "3k",
+        "--methods",
+        "network",
+        "--out",
+        &d.join("r").to_string_lossy(),
+    ]));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("same file as the input") && err.contains("spot-3k.ply"), "{err}");
+    assert_eq!(std::fs::read(data.join("spot-3k.ply")).unwrap(), original);
+}
+
 fn ply_with_comments(comments: &[String]) -> Vec<u8> {
     let mut s = String::from("ply\nformat ascii 1.0\n");
     for c in comments {

@@ -720,13 +720,12 @@ fn crlf_comments_obj_info_tabs_and_spaces() {
 }
 
 #[test]
-fn ascii_body_may_wrap_lines_and_use_odd_whitespace() {
-    let bytes = header_only("ascii", XYZ, 3) + "1\t2 \r\n 3\r\n\r\n4   5\n6 7\n8\n9";
-    let r = ok(bytes.as_bytes());
-    assert_eq!(
-        r.cloud.positions,
-        vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
-    );
+fn ascii_records_use_odd_whitespace_one_line_each() {
+    let bytes = header_only("ascii", XYZ, 3) + "1\t2 \r\n\r\n 3   4\t5\r\n\n6 7 8 \n";
+    let e = err(bytes.as_bytes());
+    assert!(matches!(e, PlyError::ShortLine { index: 0, first: 8, line: 10, .. }), "{e:?}");
+    let bytes = header_only("ascii", XYZ, 3) + "1\t2 3\r\n\r\n 4   5\t6\r\n\n7 8 9 \n";
+    assert_eq!(ok(bytes.as_bytes()).cloud.positions, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]);
     // Leading/trailing spaces on header lines and blank header lines are tolerated.
     let bytes = "ply \r\n  format ascii 1.0  \r\n\r\nelement vertex 1\nproperty float x\nproperty float y\n\
                  property float z\nend_header\n1e3 -2.5E-2 +7\n";
@@ -734,6 +733,60 @@ fn ascii_body_may_wrap_lines_and_use_odd_whitespace() {
         ok(bytes.as_bytes()).cloud.positions,
         vec![[1000.0, -0.025, 7.0]]
     );
+}
+
+#[test]
+fn an_ascii_line_with_a_value_too_many_or_too_few_is_refused_where_it_is() {
+    // Read as a stream of tokens these were (0,0,0) and (9,9,1): a misread without a word.
+    let e = err((header_only("ascii", XYZ, 2) + "0 0 0 9 9\n1 1 1\n").as_bytes());
+    assert_eq!(e, PlyError::LongLine { element: "vertex".into(), index: 0, properties: 3, line: 8, extra: "9 9".into() });
+    assert_msg(&e, &["line 8", "record 0", "'9 9' left over", "3 properties"]);
+    let e = err((header_only("ascii", XYZ, 2) + "0 0.0000\n1 1 1\n").as_bytes());
+    assert!(matches!(e, PlyError::ShortLine { index: 0, first: 8, line: 9, .. }), "{e:?}");
+    assert_msg(&e, &["line 8", "value missing on line 8"]);
+    // The same in a skipped element, and on the last line (the body ends).
+    let faces = "ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int vertex_indices\nelement vertex 1\n\
+                 property float x\nproperty float y\nproperty float z\nend_header\n3 0 1 2 7\n0 0 0\n";
+    assert!(matches!(err(faces.as_bytes()), PlyError::LongLine { ref element, .. } if element == "face"));
+    assert!(matches!(err((header_only("ascii", XYZ, 2) + "0 0 0\n1 1.5\n").as_bytes()), PlyError::UnexpectedEof { index: 1, .. }));
+}
+
+#[test]
+fn classic_mac_line_endings_read_in_the_header_and_an_ascii_body() {
+    let ascii = "ply\rformat ascii 1.0\rcomment cr only\relement vertex 2\rproperty float x\rproperty float y\r\
+                 property float z\rend_header\r1 2 3\r4 5 6\r";
+    let r = ok(ascii.as_bytes());
+    assert_eq!(r.cloud.positions, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+    assert_eq!(r.info.comments, ["cr only"]);
+    let e = err(ascii.replace("4 5 6", "4 5 6 7").as_bytes());
+    assert!(matches!(e, PlyError::LongLine { line: 10, .. }), "{e:?}");
+    let mut binary = b"ply\rformat binary_little_endian 1.0\relement vertex 1\rproperty uchar x\rproperty uchar y\r\
+                       property uchar z\rend_header\r"
+        .to_vec();
+    binary.extend_from_slice(b"\r\n\x07");
+    assert_eq!(ok(&binary).cloud.positions, vec![[13.0, 10.0, 7.0]]);
+}
+
+#[test]
+fn a_second_x_property_is_refused() {
+    let bytes = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float x\nproperty float y\n\
+                 property float z\nend_header\n1 2 3 4\n";
+    let e = err(bytes.as_bytes());
+    assert!(matches!(e, PlyError::MalformedHeader { line: 5, .. }), "{e:?}");
+    assert_msg(&e, &["line 5", "second vertex property of this name", "property float x"]);
+    // A repeated property the reader does not use is harmless.
+    let bytes = bytes.replace("property float x\nproperty float x", "property float x\nproperty float i\nproperty float i");
+    assert_eq!(ok((bytes.replace("1 2 3 4", "1 8 9 2 3")).as_bytes()).cloud.positions, vec![[1.0, 2.0, 3.0]]);
+}
+
+#[test]
+fn an_ascii_body_declared_binary_is_refused_with_the_cause() {
+    for fmt in ["binary_little_endian", "binary_big_endian"] {
+        let body: String = (0..20).map(|i| format!("{}.25 {} -{}e-1\n", i, i * 3, i)).collect();
+        let e = err((header_only(fmt, XYZ, 20) + &body).as_bytes());
+        assert_eq!(e, PlyError::TextBody { format: if fmt.contains("little") { PlyFormat::BinaryLittleEndian } else { PlyFormat::BinaryBigEndian } });
+        assert_msg(&e, &[fmt, "format ascii 1.0"]);
+    }
 }
 
 #[test]
@@ -748,10 +801,23 @@ fn binary_body_after_crlf_end_header_starts_after_the_newline() {
 }
 
 #[test]
-fn trailing_bytes_after_the_last_element_are_ignored() {
+fn data_after_the_last_element_is_not_read_and_said() {
     let mut bytes = write_ply(Fmt::Le, &[xyz_elem(&PTS)], &Style::default());
+    let clean = ok(&bytes);
+    assert!(clean.info.warnings.is_empty(), "{:?}", clean.info.warnings);
     bytes.extend_from_slice(b"garbage");
-    assert_eq!(ok(&bytes).cloud.positions, PTS.to_vec());
+    let r = ok(&bytes);
+    assert_eq!(r.cloud.positions, PTS.to_vec());
+    assert_eq!(r.info.warnings.len(), 1);
+    assert!(r.info.warnings[0].contains("7 bytes follow the last element") && r.info.warnings[0].contains("too few records"), "{:?}", r.info.warnings);
+    assert!(r.format_notes().iter().any(|n| n.contains("7 bytes follow")));
+    // Ascii: lines beyond the declared count (a count too small) are counted.
+    let ascii = header_only("ascii", XYZ, 1) + "1 2 3\n4 5 6\n7 8 9\n\n";
+    let r = ok(ascii.as_bytes());
+    assert_eq!(r.cloud.positions, vec![[1.0, 2.0, 3.0]]);
+    assert!(r.info.warnings[0].contains("2 more lines follow the last element, from line 9"), "{:?}", r.info.warnings);
+    // Blank lines after the body are nothing.
+    assert!(ok((header_only("ascii", XYZ, 1) + "1 2 3\n\n \n").as_bytes()).info.warnings.is_empty());
 }
 
 #[test]
@@ -951,9 +1017,11 @@ fn error_huge_counts_fail_before_allocating() {
         4294967295,
     ];
     for fmt in ["ascii", "binary_little_endian", "binary_big_endian"] {
+        // A binary body that is not text (a text body under a binary header is refused as such).
+        let body = if fmt == "ascii" { "1 2 3 4 5 6 7 8 9 10 11 12\n" } else { "1 2 3 4 5 6 7 8 9 10 11 12\u{1}\n" };
         for count in counts {
             let t = std::time::Instant::now();
-            let text = header_only(fmt, XYZ, count) + "1 2 3 4 5 6 7 8 9 10 11 12\n";
+            let text = header_only(fmt, XYZ, count) + body;
             let e = err(text.as_bytes());
             assert!(
                 matches!(&e, PlyError::TooManyRecords { element, count: c, .. } if element == "vertex" && *c == count),
@@ -972,7 +1040,7 @@ fn error_huge_counts_fail_before_allocating() {
                 u64::MAX
             );
             let text = format!(
-                "ply\nformat {fmt} 1.0\n{}element vertex 1\n{XYZ}{}end_header\n1 2 3 4 5 6 7 8 9 10 11 12\n",
+                "ply\nformat {fmt} 1.0\n{}element vertex 1\n{XYZ}{}end_header\n{body}",
                 if before { face.as_str() } else { "" },
                 if after { face.as_str() } else { "" },
             );
@@ -1022,7 +1090,7 @@ fn error_count_just_over_what_fits() {
         "{e:?}"
     );
     assert_eq!(
-        ok((header_only("ascii", XYZ, 2) + "1 2 3 4 5 6").as_bytes())
+        ok((header_only("ascii", XYZ, 2) + "1 2 3\n4 5 6").as_bytes())
             .cloud
             .len(),
         2
@@ -1161,9 +1229,9 @@ fn error_ascii_unexpected_eof_and_bad_values() {
 
     let props = "property float x\nproperty float y\nproperty float z\nproperty uchar red\n\
                  property uchar green\nproperty uchar blue\n";
-    let e = err((header_only("ascii", props, 1) + "1 2 3\r\n4 5 6.5\r\n").as_bytes());
+    let e = err((header_only("ascii", props, 1) + "1 2 3 4 5 6.5\r\n").as_bytes());
     assert!(
-        matches!(&e, PlyError::BadValue { line: 12, property, token, .. } if property == "blue" && token == "6.5"),
+        matches!(&e, PlyError::BadValue { line: 11, property, token, .. } if property == "blue" && token == "6.5"),
         "{e:?}"
     );
 

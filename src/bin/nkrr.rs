@@ -300,8 +300,16 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     use nkrr::io::mesh_out::{self, MeshFormat};
     let format = MeshFormat::from_path(&output)
         .ok_or_else(|| usage(&format!("-o {output}: the extension must be .glb, .ply, .obj or .stl")))?;
-    // Before any work: a bad output path found after minutes of reconstruction wastes them.
-    nkrr::io::atomic::check_output(std::path::Path::new(&output)).map_err(|e| fail(format!("-o {output}: {e}")))?;
+    // Before any work: a bad output path found after minutes of reconstruction wastes them,
+    // and an output that is the input (by any path or link) would replace the user's cloud.
+    let out_path = std::path::Path::new(&output);
+    nkrr::io::atomic::check_not_input(out_path, &[std::path::Path::new(&input)]).map_err(|e| fail(format!("-o {e}")))?;
+    nkrr::io::atomic::check_output(out_path).map_err(|e| fail(format!("-o {output}: {e}")))?;
+
+    // Settings the run will not use are said before any work (nkrr::settings::unused).
+    for u in nkrr::settings::unused(&settings, Some(format)) {
+        tell!("warning: {}", u.cli());
+    }
 
     let t0 = nkrr::gpu::now();
     let (bytes, parsed) = read_scan(&input)?;
@@ -357,6 +365,9 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             f.moved, f.mean_shift, f.kept, f.flipped, f.flipped_after_repair
         );
     }
+    for w in &rec.warnings {
+        tell!("warning: {w}");
+    }
     for n in &rec.notices {
         tell!("notice: {n}");
     }
@@ -367,6 +378,8 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     }
     let mesh_out::Written { bytes, vertices, triangles } = mesh_out::write(format, &rec.mesh, name, rec.translation(), &comment, settings.glb)
         .map_err(|e| fail(format!("writing {output}: {e}")))?;
+    // Again at the write: the input may have been linked there while we worked.
+    nkrr::io::atomic::check_not_input(out_path, &[std::path::Path::new(&input)]).map_err(|e| fail(format!("-o {e}")))?;
     write_file(&output, &bytes)?;
     let times: Vec<String> = rec.timings.iter().map(|(s, t)| format!("{s} {t:.2}s")).collect();
     say!(
@@ -645,6 +658,22 @@ fn eval(args: &[String]) -> Result<(), Failure> {
         .collect();
     if jobs.is_empty() {
         return Err(fail(format!("no NAME.obj with a NAME-SIZE.ply (sizes {}) in {dir}", sizes.join(","))));
+    }
+    // No report or kept mesh may land on a cloud or ground truth it reads (`--out DIR/spot-3k`
+    // with --keep-meshes, or a link): refused before any work, like `reconstruct -o`.
+    let inputs: Vec<String> = jobs
+        .iter()
+        .flat_map(|(n, s)| [path(format!("{n}-{s}.ply")), path(format!("{n}.obj"))])
+        .collect();
+    let inputs: Vec<&std::path::Path> = inputs.iter().map(std::path::Path::new).collect();
+    let mut outputs = vec![format!("{out}.md"), format!("{out}.json")];
+    if keep {
+        for (shape, size) in &jobs {
+            outputs.extend(variants.iter().map(|(method, _)| format!("{out}-{shape}-{size}-{method}.glb")));
+        }
+    }
+    for o in &outputs {
+        nkrr::io::atomic::check_not_input(std::path::Path::new(o), &inputs).map_err(|e| fail(format!("--out {out}: {e}")))?;
     }
 
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;

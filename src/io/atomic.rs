@@ -84,6 +84,38 @@ pub fn check_output(path: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// Whether `a` and `b` name the same existing file, by any path: the same file reached through
+/// `./`, `..`, a symbolic link or a hard link. Compared by device and inode where the platform
+/// has them (a hard link has no other common trait), else by canonical path. A path that does
+/// not exist names no file, so it is never the same as another.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    let (Ok(ma), Ok(mb)) = (fs::metadata(a), fs::metadata(b)) else { return false };
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        ma.dev() == mb.dev() && ma.ino() == mb.ino()
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = (ma, mb);
+        matches!((fs::canonicalize(a), fs::canonicalize(b)), (Ok(x), Ok(y)) if x == y)
+    }
+}
+
+/// Refuses an output path that names one of `inputs` (see [`same_file`]): writing there would
+/// replace the user's data with ours. The error names both paths.
+pub fn check_not_input(output: &Path, inputs: &[&Path]) -> Result<(), String> {
+    match inputs.iter().find(|i| same_file(output, i)) {
+        Some(i) if Path::new(i) == output => Err(format!("{} is the input: writing there would destroy it; choose another output name", output.display())),
+        Some(i) => Err(format!(
+            "{} is the same file as the input {} (a link or another path to it): writing there would destroy it; choose another output name",
+            output.display(),
+            i.display()
+        )),
+        None => Ok(()),
+    }
+}
+
 /// Writes `bytes` to `path` through a temporary file beside it, renamed into place once all of
 /// it is on disk; on any failure the temporary file is removed and `path` is as it was.
 /// Existing files keep their permissions. See the module documentation for devices and links.
@@ -144,6 +176,25 @@ mod tests {
         fs::create_dir(d.join("x.glb")).unwrap();
         assert!(check_output(&d.join("x.glb")).unwrap_err().contains("is a folder"));
         assert_eq!(fs::read_dir(&d).unwrap().count(), 1);
+        let _ = fs::remove_dir_all(&d);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn the_same_file_by_any_path() {
+        let d = dir("same");
+        let a = d.join("cloud.ply");
+        fs::write(&a, b"ply").unwrap();
+        std::os::unix::fs::symlink(&a, d.join("link.ply")).unwrap();
+        fs::hard_link(&a, d.join("hard.ply")).unwrap();
+        fs::write(d.join("other.ply"), b"ply").unwrap();
+        for same in ["cloud.ply", "link.ply", "hard.ply", "./cloud.ply"] {
+            assert!(same_file(&d.join(same), &a), "{same}");
+            assert!(check_not_input(&d.join(same), &[Path::new("x"), &a]).is_err(), "{same}");
+        }
+        assert!(!same_file(&d.join("other.ply"), &a));
+        assert!(!same_file(&d.join("missing.ply"), &d.join("missing.ply")));
+        assert!(check_not_input(&d.join("new.glb"), &[&a]).is_ok());
         let _ = fs::remove_dir_all(&d);
     }
 

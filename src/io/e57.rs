@@ -37,6 +37,20 @@ fn check_header(b: &[u8]) -> Result<(), String> {
     Ok(())
 }
 
+/// A failure while decoding a scan's points, in the user's terms: a damaged data packet makes
+/// the `e57` crate report its own "Internal error: ... logic error", which sounds like a bug in
+/// the reader rather than a damaged file.
+fn point_error(name: &str, read: u64, e: ::e57::Error) -> String {
+    match e {
+        ::e57::Error::Internal { .. } | ::e57::Error::Invalid { .. } => format!(
+            "{name}, after point {read}: the compressed point data is damaged (a corrupt data packet: the file \
+             was changed or broken after it was written); the E57 reader said: {e}"
+        ),
+        ::e57::Error::Read { .. } => format!("{name}, after point {read}: the point data cannot be read (is the file cut short?): {e}"),
+        _ => format!("{name}, point {read}: {e}"),
+    }
+}
+
 /// Reads every scan of an E57 file into one cloud.
 pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
     check_header(bytes)?;
@@ -75,7 +89,7 @@ pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
         points.intensity_to_color(false);
         let mut read = 0u64;
         for p in points {
-            let p = p.map_err(|e| format!("{name}, point {read}: {e}"))?;
+            let p = p.map_err(|e| point_error(&name, read, e))?;
             read += 1;
             if read > scan.records {
                 return Err(format!("{name} yields more points than the {} it declares", scan.records));

@@ -75,6 +75,27 @@ fn check_layout(b: &[u8]) -> Result<Layout, String> {
             offset_to_points - header_size
         ));
     }
+    // Each VLR (a 54-byte header, then as many bytes as it declares at its byte 52) must end
+    // inside the file: one that runs past it failed in the `las` crate as "header: failed to
+    // fill whole buffer", which named neither the record nor the header as the cause.
+    let mut at = header_size;
+    for i in 0..vlrs {
+        if at + 54 > file_len {
+            return Err(format!(
+                "variable-length record {i} of {vlrs} (declared at byte 100) would start at byte {at}, but its 54-byte header runs past the file's end at byte {file_len}: the header is damaged"
+            ));
+        }
+        let len = u16_at(b, at as usize + 52);
+        if at + 54 + len > file_len {
+            let user = String::from_utf8_lossy(&b[at as usize + 2..at as usize + 18]).trim_end_matches('\0').to_string();
+            let id = u16_at(b, at as usize + 18);
+            return Err(format!(
+                "variable-length record {i} (at byte {at}, user '{user}', record {id}) declares {len} bytes of data (at byte {}), running past the file's end at byte {file_len}: the record's length or the file is damaged",
+                at + 52
+            ));
+        }
+        at += 54 + len;
+    }
     let count = if version.1 >= 4 && header_size >= 375 && b.len() >= 255 {
         let wide = u64_at(b, 247);
         if wide == 0 { legacy_count } else { wide }
@@ -297,7 +318,16 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
                     (true, true) => format!(", in chunk {first} ({chunk_size} points a chunk)"),
                     (true, false) => format!(", in chunks {first}-{last} ({chunk_size} points a chunk)"),
                 };
-                let why = if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                // Decoding corrupt data can run on to the end of the file too: where the chunk
+                // table (written after the points) is there, the file is whole and damaged.
+                let table = u64_at(bytes, layout.offset_to_points as usize);
+                let whole = table != u64::MAX && table > layout.offset_to_points && table + 8 <= file_len as u64;
+                let why = if e.kind() == std::io::ErrorKind::UnexpectedEof && whole {
+                    format!(
+                        "corrupt compressed data: decoding ran on to byte {at} of {file_len}, past the points' data, which \
+                         ends where the chunk table starts (byte {table}); the file is whole but damaged"
+                    )
+                } else if e.kind() == std::io::ErrorKind::UnexpectedEof {
                     format!("the compressed data ran out at byte {at} of {file_len}, while decoding these points: the file is truncated")
                 } else {
                     format!("corrupt compressed data near byte {at} of {file_len}")

@@ -19,9 +19,13 @@
 //! - Any other property (including list properties inside `vertex`) and any other element
 //!   (faces, edges, ... before or after `vertex`) is skipped, in all three formats. They are still
 //!   walked, so a truncated face list is reported rather than silently ignored.
-//! - `comment` and `obj_info` lines, CRLF line endings, tabs and runs of spaces, blank header
-//!   lines. An ascii body is read as a stream of whitespace-separated tokens, so records that
-//!   wrap lines are fine. Bytes after the last declared element are ignored.
+//! - `comment` and `obj_info` lines, LF, CRLF and lone-CR (classic Mac OS) line endings, tabs
+//!   and runs of spaces, blank header lines. An ascii record is one line, as the specification
+//!   has it: a line with a value too many or too few is refused with its line number (read as a
+//!   stream of tokens, it shifted every later value into the wrong property without a word).
+//!   Data after the last declared element is not read, and said in [`PlyInfo::warnings`].
+//! - Refused with the cause: a second vertex property of a name the reader uses (`x` twice:
+//!   which one holds the value?), and a body declared binary that is lines of text numbers.
 //!
 //! Robustness contract (the input is an arbitrary file a user dropped on a web page): no input
 //! makes the reader panic, loop for longer than the input's length justifies, or allocate more
@@ -192,6 +196,8 @@ pub struct PlyInfo {
     /// Vertices dropped because `x`, `y` or `z` was NaN or infinite (this includes `double`
     /// coordinates too large for `f32`).
     pub dropped_non_finite: usize,
+    /// What the user should know about the file's structure (data after the last element).
+    pub warnings: Vec<String>,
 }
 
 /// A cloud and what the file said about it.
@@ -245,6 +251,7 @@ impl PlyCloud {
                 self.info.other_elements.iter().map(|(name, count)| format!("{name} ({count})")).collect();
             w.push(format!("skipped elements: {}", els.join(", ")));
         }
+        w.extend(self.info.warnings.iter().cloned());
         w
     }
 }
@@ -342,6 +349,26 @@ pub enum PlyError {
         property: String,
         at: BodyPos,
         value: i64,
+    },
+    /// An ascii record (one line) that ends before its last property: it goes on on `line`.
+    ShortLine {
+        element: String,
+        index: u64,
+        properties: usize,
+        first: usize,
+        line: usize,
+    },
+    /// An ascii record (one line) with values left after its last property.
+    LongLine {
+        element: String,
+        index: u64,
+        properties: usize,
+        line: usize,
+        extra: String,
+    },
+    /// The header says `format` (binary) but the body is lines of numbers as text.
+    TextBody {
+        format: PlyFormat,
     },
     /// The header declares zero vertices.
     EmptyCloud,
@@ -443,6 +470,22 @@ impl fmt::Display for PlyError {
                 "PLY body at {at}: element '{element}' record {index}, list property \
                  '{property}' has negative count {value}"
             ),
+            ShortLine { element, index, properties, first, line } => write!(
+                f,
+                "PLY ascii body line {first}: element '{element}' record {index} has fewer values than its \
+                 {properties} properties and goes on on line {line}: each record must be one line (is a value \
+                 missing on line {first}?)"
+            ),
+            LongLine { element, index, properties, line, extra } => write!(
+                f,
+                "PLY ascii body line {line}: element '{element}' record {index} has more values than its \
+                 {properties} properties ('{extra}' left over): the line does not match the header"
+            ),
+            TextBody { format } => write!(
+                f,
+                "PLY header says 'format {format} 1.0', but the body is lines of numbers written as text: the \
+                 format line should say 'format ascii 1.0' (read as binary, every point would be garbage)"
+            ),
             EmptyCloud => write!(f, "PLY file declares 0 vertices"),
             TooLarge { index, message } => write!(f, "PLY vertex {index}: {message}"),
             AllNonFinite { count } => write!(
@@ -488,6 +531,22 @@ pub fn has_magic(bytes: &[u8]) -> bool {
     }
 }
 
+/// Whether the magic line at the start of `bytes` ends with a lone CR (classic Mac OS).
+fn cr_only(bytes: &[u8]) -> bool {
+    let head = &bytes[..bytes.len().min(64)];
+    match head.iter().position(|&b| b == b'\n' || b == b'\r') {
+        Some(i) => head[i] == b'\r' && bytes.get(i + 1) != Some(&b'\n'),
+        None => false,
+    }
+}
+
+/// Properties the reader takes values from: a second one of these names in `vertex` leaves it
+/// to chance which value is read, so the header is refused.
+const READ_NAMES: [&str; 14] = [
+    "x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha", "diffuse_red", "diffuse_green", "diffuse_blue",
+    "diffuse_alpha",
+];
+
 /// Parses and validates the header. Needs only the bytes up to and including the `end_header`
 /// line, so it can be called on a prefix of a large file (a prefix that cuts the header short
 /// gives [`PlyError::MissingEndHeader`]: read more); it therefore does not check declared
@@ -511,12 +570,15 @@ pub fn read_ply_header(bytes: &[u8]) -> Result<PlyHeader, PlyError> {
     if !has_magic(&bytes[pos..]) {
         return Err(PlyError::NotPly); // without scanning a large non-PLY file for a newline
     }
+    // Lines end as the magic line ends: LF or CRLF, or a lone CR (classic Mac OS exports),
+    // which read as LF made the whole file one line ("does not start with a 'ply' line").
+    let end_byte = if cr_only(&bytes[pos..]) { b'\r' } else { b'\n' };
     let body_offset = loop {
         if pos >= bytes.len() {
             return Err(PlyError::MissingEndHeader { lines: line_no });
         }
         let rest = &bytes[pos..];
-        let (raw, next, terminated) = match rest.iter().position(|&b| b == b'\n') {
+        let (raw, next, terminated) = match rest.iter().position(|&b| b == end_byte) {
             Some(n) => (&rest[..n], pos + n + 1, true),
             None => (rest, bytes.len(), false),
         };
@@ -637,6 +699,9 @@ pub fn read_ply_header(bytes: &[u8]) -> Result<PlyHeader, PlyError> {
                     [t, name] => (PropertyKind::Scalar(ty(t)?), name),
                     _ => return Err(malformed("expected 'property <type> <name>'")),
                 };
+                if element.name == "vertex" && READ_NAMES.contains(&name) && element.properties.iter().any(|p| p.name == name) {
+                    return Err(malformed("a second vertex property of this name: which one holds the value is not clear"));
+                }
                 element.properties.push(PlyProperty {
                     name: name.to_string(),
                     kind,
@@ -695,8 +760,11 @@ fn find_scalar(e: &PlyElement, names: &[&str]) -> Option<usize> {
 /// are converted.
 pub fn read_ply(bytes: &[u8]) -> Result<PlyCloud, PlyError> {
     let header = read_ply_header(bytes)?;
+    if header.format != PlyFormat::Ascii && looks_like_text_body(&bytes[header.body_offset..]) {
+        return Err(PlyError::TextBody { format: header.format });
+    }
     check_capacity(&header, bytes.len())?;
-    let (cloud, dropped) = match header.format {
+    let (cloud, dropped, leftover) = match header.format {
         PlyFormat::Ascii => read_body(&header, &mut Ascii::new(bytes, header.body_offset))?,
         PlyFormat::BinaryLittleEndian => read_body(
             &header,
@@ -728,6 +796,10 @@ pub fn read_ply(bytes: &[u8]) -> Result<PlyCloud, PlyError> {
         comments: header.comments,
         obj_info: header.obj_info,
         dropped_non_finite: dropped,
+        warnings: leftover
+            .map(|l| format!("{l}: the header may declare too few records, and what follows was not read"))
+            .into_iter()
+            .collect(),
     };
     Ok(PlyCloud { cloud, info })
 }
@@ -797,6 +869,16 @@ enum Fail {
         at: BodyPos,
         value: i64,
     },
+    /// Ascii: a record that began on line `first` goes on on `line`.
+    Wrapped {
+        first: usize,
+        line: usize,
+    },
+    /// Ascii: values left on `line` after the record's last property.
+    Extra {
+        line: usize,
+        token: String,
+    },
 }
 
 /// A body decoder. Binary and ascii implement it; the record walker is generic over it so
@@ -815,6 +897,12 @@ trait Source {
     fn decode(b: &[u8], t: ScalarType) -> f64;
     /// The whole input.
     fn data(&self) -> &[u8];
+    /// After a record's last property (ascii: the line must end here).
+    fn end_record(&mut self) -> Result<(), Fail> {
+        Ok(())
+    }
+    /// What follows the last element, said for a warning (None when nothing does).
+    fn leftover(&self) -> Option<String>;
 }
 
 struct Binary<'a, const BE: bool> {
@@ -907,6 +995,21 @@ impl<const BE: bool> Source for Binary<'_, BE> {
     fn data(&self) -> &[u8] {
         self.data
     }
+
+    fn leftover(&self) -> Option<String> {
+        let left = self.data.len() - self.pos;
+        (left > 0).then(|| format!("{left} bytes follow the last element, at byte {}", self.pos))
+    }
+}
+
+/// Whether `b` at `i` ends a line: LF, or a CR not followed by LF (CRLF ends at its LF).
+fn ends_line(b: &[u8], i: usize) -> bool {
+    b[i] == b'\n' || (b[i] == b'\r' && b.get(i + 1) != Some(&b'\n'))
+}
+
+/// 1 + the line endings in `b` ([`ends_line`]).
+fn line_after(b: &[u8]) -> usize {
+    1 + (0..b.len()).filter(|&i| ends_line(b, i)).count()
 }
 
 struct Ascii<'a> {
@@ -914,26 +1017,30 @@ struct Ascii<'a> {
     pos: usize,
     /// 1-based line of `pos`.
     line: usize,
+    /// The line of the current record's first value (None between records).
+    record_line: Option<usize>,
 }
 
 impl<'a> Ascii<'a> {
     fn new(data: &'a [u8], body_offset: usize) -> Self {
-        let line = 1 + data[..body_offset].iter().filter(|&&b| b == b'\n').count();
+        let line = line_after(&data[..body_offset]);
         Ascii {
             data,
             pos: body_offset,
             line,
+            record_line: None,
         }
     }
 
-    /// Next whitespace-separated token and its line. Line structure is not enforced: some
-    /// writers wrap long records, and tokens are unambiguous without it.
+    /// Next whitespace-separated token and its line. A record is one line: read as a stream of
+    /// tokens, a line with a value too many or too few shifted every later value into the wrong
+    /// property without a word ("0 0 0 9 9" then "1 1 1" read as (0,0,0) and (9,9,1)).
     #[inline]
     fn token(&mut self) -> Result<(&'a [u8], usize), Fail> {
         let d = self.data;
         let mut p = self.pos;
         while p < d.len() && is_space(d[p]) {
-            if d[p] == b'\n' {
+            if ends_line(d, p) {
                 self.line += 1;
             }
             p += 1;
@@ -945,6 +1052,11 @@ impl<'a> Ascii<'a> {
         self.pos = p;
         if start == p {
             return Err(Fail::Eof { line: self.line });
+        }
+        match self.record_line {
+            None => self.record_line = Some(self.line),
+            Some(first) if first != self.line => return Err(Fail::Wrapped { first, line: self.line }),
+            Some(_) => {}
         }
         Ok((&d[start..p], self.line))
     }
@@ -1008,6 +1120,32 @@ impl Source for Ascii<'_> {
     fn data(&self) -> &[u8] {
         self.data
     }
+
+    fn end_record(&mut self) -> Result<(), Fail> {
+        let d = self.data;
+        let mut p = self.pos;
+        while p < d.len() && is_space(d[p]) && !ends_line(d, p) {
+            p += 1;
+        }
+        if p < d.len() && !is_space(d[p]) {
+            let end = (p..d.len()).find(|&i| ends_line(d, i)).unwrap_or(d.len());
+            return Err(Fail::Extra { line: self.line, token: quote(d[p..end].trim_ascii()) });
+        }
+        self.record_line = None;
+        Ok(())
+    }
+
+    fn leftover(&self) -> Option<String> {
+        let rest = &self.data[self.pos..];
+        let lines = rest
+            .split(|&b| b == b'\n' || b == b'\r')
+            .filter(|l| !l.trim_ascii().is_empty())
+            .count();
+        (lines > 0).then(|| {
+            let first = rest.iter().position(|b| !is_space(*b)).unwrap_or(0);
+            format!("{lines} more lines follow the last element, from line {}", line_after(&self.data[..self.pos + first]))
+        })
+    }
 }
 
 /// Turns a [`Fail`] into a [`PlyError`] naming the element, record and property.
@@ -1044,11 +1182,15 @@ fn located(fail: Fail, e: &PlyElement, index: u64, prop: usize, file_len: usize)
             at,
             value,
         },
+        Fail::Wrapped { first, line } => PlyError::ShortLine { element, index, properties: e.properties.len(), first, line },
+        Fail::Extra { line, token } => PlyError::LongLine { element, index, properties: e.properties.len(), line, extra: token },
     }
 }
 
 /// Walks every element in file order, keeping the vertex values the cloud needs.
-fn read_body<S: Source>(header: &PlyHeader, src: &mut S) -> Result<(PointCloud, usize), PlyError> {
+/// Also says what follows the last element: more records than declared are points the header
+/// does not count, which the user should hear of.
+fn read_body<S: Source>(header: &PlyHeader, src: &mut S) -> Result<(PointCloud, usize, Option<String>), PlyError> {
     let mut cloud = PointCloud::default();
     let mut dropped = 0usize;
     for (ei, e) in header.elements.iter().enumerate() {
@@ -1058,7 +1200,19 @@ fn read_body<S: Source>(header: &PlyHeader, src: &mut S) -> Result<(PointCloud, 
             skip_element(e, src)?;
         }
     }
-    Ok((cloud, dropped))
+    Ok((cloud, dropped, src.leftover()))
+}
+
+/// Whether a body declared binary is in fact lines of text numbers (a wrong format line):
+/// its first bytes (at least 16) are only digits, signs, points, exponents, spaces and line
+/// breaks, with at least one line break. Binary values almost never are: every byte of 16 or
+/// more would have to fall among 17 of 256.
+fn looks_like_text_body(body: &[u8]) -> bool {
+    let head = &body[..body.len().min(512)];
+    head.len() >= 16
+        && head.iter().all(|b| b"0123456789+-.eE \t\r\n".contains(b))
+        && head.iter().any(|&b| b == b'\n' || b == b'\r')
+        && head.iter().any(u8::is_ascii_digit)
 }
 
 fn skip_element<S: Source>(e: &PlyElement, src: &mut S) -> Result<(), PlyError> {
@@ -1082,6 +1236,7 @@ fn skip_element<S: Source>(e: &PlyElement, src: &mut S) -> Result<(), PlyError> 
             };
             r.map_err(|f| located_src(f, e, index, pi, src))?;
         }
+        src.end_record().map_err(|f| located_src(f, e, index, e.properties.len() - 1, src))?;
     }
     Ok(())
 }
@@ -1243,6 +1398,7 @@ fn read_vertices<S: Source>(e: &PlyElement, src: &mut S) -> Result<(PointCloud, 
                 };
                 r.map_err(|f| located_src(f, e, index, pi, src))?;
             }
+            src.end_record().map_err(|f| located_src(f, e, index, e.properties.len() - 1, src))?;
             check_pushed(push_vertex(&mut out, &v, &p), index)?;
         }
     }

@@ -62,15 +62,51 @@ const MAX_COLUMNS: usize = 64;
 /// (at most one byte in 50 otherwise: a binary file has far more), with at least one digit.
 /// A stray NUL (one in 50 bytes, or one in a short file) is let through, so that the text
 /// reader can say where it is; UTF-16 text and binary files have far more.
+///
+/// The digit is looked for from the first line that is not a comment (`#`, `//`), within the
+/// first [`COMMENT_SCAN`] bytes: a long first comment (an export's whole settings on one line)
+/// used to hide every digit from a 4 KB look and the file was refused as "not a point cloud".
 pub fn looks_like_text(bytes: &[u8]) -> bool {
+    let bytes = strip_boms(bytes);
     let head = &bytes[..bytes.len().min(4096)];
-    let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
-    if !head.iter().any(u8::is_ascii_digit) {
+    let data = &bytes[after_comments(&bytes[..bytes.len().min(COMMENT_SCAN)])..];
+    if !data[..data.len().min(4096)].iter().any(u8::is_ascii_digit) {
         return false;
     }
     let nul = head.iter().filter(|&&b| b == 0).count();
     let odd = head.iter().filter(|&&b| b != 0 && !(b.is_ascii_graphic() || b.is_ascii_whitespace())).count();
     nul * 50 <= head.len().max(50) && odd * 50 <= head.len()
+}
+
+/// How far [`looks_like_text`] reads past leading comment lines to find the data.
+const COMMENT_SCAN: usize = 1 << 20;
+
+/// The UTF-8 byte-order mark.
+const BOM: &[u8] = b"\xEF\xBB\xBF";
+
+/// `bytes` without the byte-order marks they start with: editors and concatenated exports can
+/// leave two, and a second one left in front of the first line made it a header, losing its
+/// point without a word.
+fn strip_boms(mut bytes: &[u8]) -> &[u8] {
+    while let Some(rest) = bytes.strip_prefix(BOM) {
+        bytes = rest;
+    }
+    bytes
+}
+
+/// The offset of the first line of `bytes` that is not blank and not a comment (`#`, `//`), or
+/// of the end of `bytes` when they hold none.
+fn after_comments(bytes: &[u8]) -> usize {
+    let mut at = 0;
+    while at < bytes.len() {
+        let end = bytes[at..].iter().position(|&b| b == b'\n' || b == b'\r').map_or(bytes.len(), |e| at + e);
+        let line = bytes[at..end].trim_ascii();
+        if !(line.is_empty() || line.starts_with(b"#") || line.starts_with(b"//")) {
+            return at;
+        }
+        at = end + 1;
+    }
+    bytes.len()
 }
 
 /// The fields of a line: separated by `;`, whitespace and, unless the file writes decimal
@@ -309,6 +345,18 @@ struct Lines<'a> {
     number: usize,
 }
 
+impl<'a> Lines<'a> {
+    fn new(text: &'a str) -> Self {
+        Lines { text, pos: 0, number: 0 }
+    }
+
+    /// Whether the line last returned was the file's last and had no line ending: a file cut
+    /// while it was being written (or one whose writer left the last line open).
+    fn ended_open(&self) -> bool {
+        self.pos > self.text.len()
+    }
+}
+
 impl<'a> Iterator for Lines<'a> {
     type Item = (usize, &'a str);
     fn next(&mut self) -> Option<(usize, &'a str)> {
@@ -321,8 +369,18 @@ impl<'a> Iterator for Lines<'a> {
         let crlf = rest.as_bytes().get(end) == Some(&b'\r') && rest.as_bytes().get(end + 1) == Some(&b'\n');
         self.pos += end + if crlf { 2 } else { 1 };
         self.number += 1;
-        Some((self.number, &rest[..end]))
+        // A byte-order mark at a line's start (files joined with `cat`, each with its own) is
+        // not part of its first value.
+        Some((self.number, rest[..end].trim_start_matches('\u{feff}')))
     }
+}
+
+/// Digits after the decimal point of the last field of `line` (None without one).
+fn last_decimals(line: &str, decimal_comma: bool) -> Option<usize> {
+    let last = fields(line.trim(), decimal_comma).last()?;
+    let mantissa = last.split(['e', 'E']).next().unwrap_or(last);
+    let (_, frac) = mantissa.split_once(if decimal_comma { ',' } else { '.' })?;
+    Some(frac.len())
 }
 
 /// The 1-based line that the byte after `before` is on, counting LF, CRLF and lone CR as
@@ -342,7 +400,7 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
             format!("a NUL byte at byte {at}: a text cloud holds no NUL bytes (is the file damaged, or UTF-16?)"),
         ));
     }
-    let bom = if bytes.starts_with(b"\xEF\xBB\xBF") { 3 } else { 0 };
+    let bom = bytes.len() - strip_boms(bytes).len();
     let bytes = &bytes[bom..];
     let text = std::str::from_utf8(bytes).map_err(|e| {
         let at = e.valid_up_to();
@@ -361,7 +419,7 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     let mut header_lines = 0usize;
     // The decimal-comma dialect, decided by the first line that is numbers either way.
     let mut decimal_comma = false;
-    for (number, line) in (Lines { text, pos: 0, number: 0 }) {
+    for (number, line) in Lines::new(text) {
         if columns == 0 && !decimal_comma {
             if is_decimal_comma_line(line) {
                 decimal_comma = true;
@@ -446,11 +504,51 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     // At least 6 bytes ("0 0 0\n") per point: a bound the input justifies.
     out.reserve((text.len() / 6).min(1 << 22));
     let mut declared = 0u64;
-    for (number, line) in (Lines { text, pos: 0, number: 0 }) {
+    let mut notes = Vec::new();
+    // The data line before this one, to judge a last line that has no line ending.
+    let mut previous: Option<&str> = None;
+    let mut lines = Lines::new(text);
+    while let Some((number, line)) = lines.next() {
         if number < first_data_line {
             continue;
         }
-        match classify_line(line, &mut values, decimal_comma) {
+        let kind = classify_line(line, &mut values, decimal_comma);
+        if lines.ended_open() {
+            // A last line without a line ending may be a file cut while it was written: a
+            // number cut short reads as a smaller, complete one. Left out where the line shows
+            // it (too few values, not a number, fewer decimals than the line before), else read
+            // and named.
+            let shown: String = line.trim().chars().take(60).collect();
+            let cut = match kind {
+                Line::Values(c) if c < columns => Some(format!("it has {c} of the {columns} values of a point")),
+                Line::Words | Line::BadDecimal(_) => Some("it does not end in a number".to_string()),
+                Line::Values(c) if c == columns => match (last_decimals(line, decimal_comma), previous.and_then(|p| last_decimals(p, decimal_comma))) {
+                    (Some(d), Some(before)) if d < before => {
+                        Some(format!("its last value has {d} decimals where the line before has {before}"))
+                    }
+                    _ => None,
+                },
+                _ => None,
+            };
+            match cut {
+                Some(why) => {
+                    notes.push(format!(
+                        "the last line ({number}: '{shown}') has no line ending and {why}: the file looks cut short (still \
+                         being written?), so that line was left out"
+                    ));
+                    break;
+                }
+                None if matches!(kind, Line::Values(c) if c == columns) => notes.push(format!(
+                    "the last line ({number}: '{shown}') has no line ending: if the file was cut short (still being \
+                     written?) its last point may be incomplete; it was read as it is"
+                )),
+                None => {}
+            }
+        }
+        if matches!(kind, Line::Values(_)) {
+            previous = Some(line);
+        }
+        match kind {
             Line::Blank | Line::Comment(_) => {}
             Line::TooMany(c) => return Err(err(number, too_many(c))),
             Line::BadDecimal(field) => {
@@ -489,11 +587,13 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
             }
         }
     }
+    if declared == 0 {
+        return Err(err(0, notes.pop().unwrap_or_else(|| "no complete point".into())));
+    }
     if out.len() == 0 {
         return Err(err(0, format!("all {declared} points have NaN or infinite coordinates")));
     }
 
-    let mut notes = Vec::new();
     if let Some(n) = pts_count {
         if n != declared {
             notes.push(format!("the file's point count says {n}, but it holds {declared} points"));
@@ -660,6 +760,50 @@ mod tests {
         let wide: String = (0..70).map(|i| format!("{i} ")).collect();
         let e = read_text(format!("0 0 0\n{wide}\n").as_bytes()).unwrap_err();
         assert!(e.line == 2 && e.message.contains("70"), "{e}");
+    }
+
+    #[test]
+    fn byte_order_marks_at_the_start_and_at_a_line_start_are_not_data() {
+        let body: String = (0..300).map(|i| format!("{i} {} 0.5\n", i * 2)).collect();
+        for boms in 1..=3 {
+            let file = "\u{feff}".repeat(boms) + &body;
+            assert!(looks_like_text(file.as_bytes()));
+            let f = read(&file);
+            assert_eq!(f.cloud.len(), 300, "{boms} marks");
+            assert_eq!(f.cloud.positions[0], [0.0, 0.0, 0.5]);
+        }
+        // Two files joined with `cat`, each with its mark.
+        let f = read(&format!("\u{feff}1 2 3\n4 5 6\n\u{feff}7 8 9\n"));
+        assert_eq!(f.cloud.positions, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]);
+    }
+
+    #[test]
+    fn a_long_first_comment_is_a_comment() {
+        for len in [5_000, 100_000] {
+            let file = format!("# {}\n1 2 3\n4 5 6\n7 8 10\n", "settings ".repeat(len / 9));
+            assert!(looks_like_text(file.as_bytes()), "{len}");
+            let f = crate::io::read_cloud(file.as_bytes(), Some("long.xyz")).unwrap();
+            assert_eq!(f.cloud.len(), 3);
+        }
+        // Prose is still not a cloud.
+        assert!(!looks_like_text(b"# notes\nthe scan of the hall, see the report\n"));
+    }
+
+    #[test]
+    fn a_last_line_without_line_ending_is_named_or_left_out() {
+        let lines = "0.100000 0.200000 0.300000\n1.100000 1.200000 1.300000\n";
+        // Complete as far as can be told: read, and named.
+        let f = read(&format!("{lines}2.100000 2.200000 2.300000"));
+        assert_eq!(f.cloud.len(), 3);
+        assert!(f.warnings().iter().any(|w| w.contains("last line (3") && w.contains("no line ending")), "{:?}", f.warnings());
+        // A number cut short (fewer decimals than the line before), or a value missing: left out.
+        for cut in ["2.100000 2.200000 2.3", "2.100000 2.200000", "2.100000 2.200000 2.3e"] {
+            let f = read(&format!("{lines}{cut}"));
+            assert_eq!(f.cloud.len(), 2, "{cut}");
+            assert!(f.warnings().iter().any(|w| w.contains("looks cut short") && w.contains("left out")), "{cut}: {:?}", f.warnings());
+        }
+        // With a line ending, no warning.
+        assert!(!read(&format!("{lines}2.1 2.2 2.3\n")).warnings().iter().any(|w| w.contains("line ending")));
     }
 
     #[test]

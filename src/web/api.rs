@@ -269,7 +269,9 @@ fn stats_object(
 /// Everything the user should know about the run, one sentence each: the pipeline's notices,
 /// the reader's warnings, a units warning, what the GLB left out.
 fn notices(parsed: &crate::io::ScanFile, settings: &Settings, rec: &Reconstruction, report: &gltf::GlbReport) -> Array {
-    let mut lines: Vec<String> = rec.notices.clone();
+    let mut lines: Vec<String> = crate::settings::unused(settings, None).iter().map(|u| format!("Warning: {}", u.page())).collect();
+    lines.extend(rec.warnings.iter().map(|w| format!("Warning: {w}")));
+    lines.extend(rec.notices.iter().cloned());
     lines.extend(parsed.warnings());
     if settings.units.is_none() {
         let g = parsed.units_guess();
