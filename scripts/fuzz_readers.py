@@ -172,7 +172,7 @@ def random_shape(rng, n: int) -> tuple[np.ndarray, str]:
         return rng.normal(scale=0.2, size=(n, 3)), "blob"
     if k == 3:
         p = rng.uniform(-0.5, 0.5, (n, 3))
-        p[:, rng.integers(3)] *= rng.choice([0.0, 1e-3])
+        p[:, rng.integers(3)] *= pick(rng, [0.0, 1e-3])
         return p, "plane"
     if k == 4:
         t = rng.uniform(-0.5, 0.5, (n, 1))
@@ -187,7 +187,7 @@ def random_cloud(rng, n: int, anywhere: bool = False) -> tuple[np.ndarray, str]:
     relative to their size but closer than 1e4."""
     shape, name = random_shape(rng, n)
     size = 10 ** rng.uniform(-3, 3) if rng.random() < 0.9 else 10 ** rng.uniform(-6, -3)
-    place = rng.choice(["near", "far", "mixed", "medium"], p=[0.5, 0.25, 0.15, 0.10] if anywhere
+    place = pick(rng, ["near", "far", "mixed", "medium"], p=[0.5, 0.25, 0.15, 0.10] if anywhere
                        else [0.55, 0.27, 0.18, 0.0])
     if place == "near":
         centre = rng.uniform(-2, 2, 3) * size
@@ -243,7 +243,7 @@ EOLS = {"LF": "\n", "CRLF": "\r\n", "CR": "\r"}
 
 
 def pick_eol(rng) -> str:
-    return rng.choice(["LF", "CRLF", "CR"], p=[0.7, 0.2, 0.1])
+    return pick(rng, ["LF", "CRLF", "CR"], p=[0.7, 0.2, 0.1])
 
 
 # --------------------------------------------------------------------------- PLY writer
@@ -270,7 +270,7 @@ class PlyModel:
 
 def ply_model(rng) -> PlyModel:
     n = point_count(rng)
-    ctype = rng.choice(["float", "double", "int", "quantised"], p=[0.55, 0.25, 0.10, 0.10])
+    ctype = pick(rng, ["float", "double", "int", "quantised"], p=[0.55, 0.25, 0.10, 0.10])
     if ctype == "float":  # exact in f32 whatever the magnitude: nkrr reads floats as they are
         pts, shape = random_cloud(rng, n, anywhere=True)
         xyz = pts.astype(np.float32).astype(np.float64)
@@ -285,7 +285,7 @@ def ply_model(rng) -> PlyModel:
             pts, shape = integer_cloud(rng, n)
         xyz = pts
     else:  # integer coordinates (quantised scans): int/uint are recentred, the small ones exact
-        ctype = "int" if ctype == "int" else str(rng.choice(["char", "uchar", "short", "ushort", "uint"]))
+        ctype = "int" if ctype == "int" else pick(rng, ["char", "uchar", "short", "ushort", "uint"])
         lo, hi = INT_RANGE[ctype]
         for _ in range(20):
             span = int(min(hi - lo, 10 ** rng.uniform(0, np.log10(hi - lo + 1))))
@@ -301,10 +301,10 @@ def ply_model(rng) -> PlyModel:
     if rng.random() < 0.35:
         nrm = rng.normal(size=(n, 3))
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        t = rng.choice(["float", "double"], p=[0.8, 0.2])
+        t = pick(rng, ["float", "double"], p=[0.8, 0.2])
         extras += [(f"n{a}", t, nrm[:, i]) for i, a in enumerate("xyz")]
     if rng.random() < 0.35:
-        t = rng.choice(["uchar", "ushort", "float"], p=[0.8, 0.1, 0.1])
+        t = pick(rng, ["uchar", "ushort", "float"], p=[0.8, 0.1, 0.1])
         top = {"uchar": 255, "ushort": 65535}.get(t)
         rgb = rng.integers(0, top + 1, (n, 4)) if top else rng.random((n, 4))
         names = ["red", "green", "blue"] + (["alpha"] if rng.random() < 0.3 else [])
@@ -312,11 +312,11 @@ def ply_model(rng) -> PlyModel:
             names = ["diffuse_red", "diffuse_green", "diffuse_blue"]
         extras += [(c, t, rgb[:, i]) for i, c in enumerate(names)]
     if rng.random() < 0.2:
-        t = rng.choice(["float", "ushort", "uchar", "double", "int"])
+        t = pick(rng, ["float", "ushort", "uchar", "double", "int"])
         vals = rng.random(n) * 1000 if t in ("float", "double") else rng.integers(0, INT_RANGE[t][1] + 1, n)
-        extras.append((str(rng.choice(["intensity", "scalar_Intensity", "confidence", "quality"])), t, vals))
+        extras.append((pick(rng, ["intensity", "scalar_Intensity", "confidence", "quality"]), t, vals))
     if rng.random() < 0.08:  # a list inside vertex (some exporters put a vertex's faces there)
-        ct, it = str(rng.choice(["uchar", "int", "ushort"])), str(rng.choice(["int", "uint", "float"]))
+        ct, it = pick(rng, ["uchar", "int", "ushort"]), pick(rng, ["int", "uint", "float"])
         lists = [rng.integers(0, max(n, 1), int(rng.integers(0, 5))) for _ in range(n)]
         extras.append(("vertex_indices", "list", (ct, it, lists)))
     order = props + extras
@@ -325,7 +325,7 @@ def ply_model(rng) -> PlyModel:
     faces, face_types, faces_first = None, ("uchar", "int"), False
     if rng.random() < 0.2:
         k = int(rng.integers(1, 20))
-        faces = [rng.integers(0, n, int(rng.choice([3, 4]))) for _ in range(k)]
+        faces = [rng.integers(0, n, pick(rng, [3, 4])) for _ in range(k)]
         face_types = (pick(rng, ["uchar", "int", "ushort"]), pick(rng, ["int", "uint"]))
         faces_first = bool(rng.random() < 0.4)
     desc = f"{n} pts {shape}, xyz {ctype}" + "".join(f" +{p[0]}" for p in extras)
@@ -375,14 +375,14 @@ def ply_binary_records(props, n: int, endian: str) -> bytes:
 def ply_serialise(rng, m: PlyModel, fmt: str | None = None) -> Base:
     """One encoding of a PLY model: format, line endings, BOM, magic case, comments, type names
     and spacing all random; the points do not depend on them."""
-    fmt = fmt or str(rng.choice(["ascii", "binary_little_endian", "binary_big_endian"], p=[0.4, 0.35, 0.25]))
+    fmt = fmt or pick(rng, ["ascii", "binary_little_endian", "binary_big_endian"], p=[0.4, 0.35, 0.25])
     eol_name = pick_eol(rng)
     eol = EOLS[eol_name]
     bom = rng.random() < 0.08
     alias = rng.random() < 0.15
-    hsep = " " if rng.random() < 0.85 else str(rng.choice(["  ", "\t", " \t "]))
+    hsep = " " if rng.random() < 0.85 else pick(rng, ["  ", "\t", " \t "])
     tname = (lambda t: PLY_ALIAS[t]) if alias else (lambda t: t)
-    lines = ["ply" if rng.random() < 0.85 else str(rng.choice(["PLY", "Ply", "ply ", "PLY\t"])),
+    lines = ["ply" if rng.random() < 0.85 else pick(rng, ["PLY", "Ply", "ply ", "PLY\t"]),
              hsep.join(["format", fmt, "1.0"])]
     vertex = [hsep.join(["element", "vertex", str(m.n)])]
     for name, t, vals in m.props:
@@ -398,7 +398,7 @@ def ply_serialise(rng, m: PlyModel, fmt: str | None = None) -> Base:
     for el in elements:
         lines += el
     # Comments and obj_info anywhere after the magic line (some writers put them mid-header).
-    for _ in range(int(rng.choice([0, 1, 2, 5], p=[0.4, 0.3, 0.2, 0.1]))):
+    for _ in range(pick(rng, [0, 1, 2, 5], p=[0.4, 0.3, 0.2, 0.1])):
         kw = "comment" if rng.random() < 0.8 else "obj_info"
         lines.insert(int(rng.integers(1, len(lines) + 1)), (kw + " " + comment_text(rng)).rstrip())
     if rng.random() < 0.05:
@@ -408,8 +408,8 @@ def ply_serialise(rng, m: PlyModel, fmt: str | None = None) -> Base:
     what = f"ply {fmt}, {eol_name}{', BOM' if bom else ''}{', type aliases' if alias else ''}, {m.desc}"
     meta = {"hdr_lines": lines, "eol": eol, "bom": bom, "fmt": fmt, "vertex_last": m.faces is None or m.faces_first}
     if fmt == "ascii":
-        fstyle = str(rng.choice(["repr", "g9", "str"], p=[0.5, 0.35, 0.15]))
-        sep = " " if rng.random() < 0.8 else str(rng.choice(["\t", "  ", " \t", "   "]))
+        fstyle = pick(rng, ["repr", "g9", "str"], p=[0.5, 0.35, 0.15])
+        sep = " " if rng.random() < 0.8 else pick(rng, ["\t", "  ", " \t", "   "])
         trail = " " if rng.random() < 0.2 else ""
         vlines = [sep.join(r) + trail for r in zip(*ply_ascii_columns(m.props, fstyle))]
         flines = [" ".join(fmt_int(np.array([len(f)])) + fmt_int(f)) for f in (m.faces or [])]
@@ -475,8 +475,8 @@ def text_model(rng) -> TextModel:
         if storable(xyz, True):
             break
     cols = [("x", s[0]), ("y", s[1]), ("z", s[2])]
-    extras = str(rng.choice(["", "i", "rgb", "nrm", "i rgb", "rgb nrm", "i rgb nrm", "nrm rgb"],
-                            p=[0.3, 0.15, 0.2, 0.1, 0.1, 0.07, 0.05, 0.03])).split()
+    extras = pick(rng, ["", "i", "rgb", "nrm", "i rgb", "rgb nrm", "i rgb nrm", "nrm rgb"],
+                            p=[0.3, 0.15, 0.2, 0.1, 0.1, 0.07, 0.05, 0.03]).split()
     for e in extras:
         if e == "i":
             vals = rng.integers(-2048, 2048, n) if rng.random() < 0.7 else rng.random(n)
@@ -494,23 +494,25 @@ def text_model(rng) -> TextModel:
 
 def text_serialise(rng, m: TextModel) -> Base:
     """One layout of a text model: separator, header, PTS count, comments, line endings, BOMs."""
-    sep_name = str(rng.choice(list(TEXT_SEPS), p=[0.45, 0.15, 0.2, 0.1, 0.1]))
+    sep_name = pick(rng, list(TEXT_SEPS), p=[0.45, 0.15, 0.2, 0.1, 0.1])
     sep = TEXT_SEPS[sep_name]
     if sep == " " and rng.random() < 0.1:
-        sep = str(rng.choice(["  ", " \t"]))
+        sep = pick(rng, ["  ", " \t"])
     eol_name = pick_eol(rng)
     eol = EOLS[eol_name]
-    header = str(rng.choice(["none", "names", "cloudcompare"], p=[0.6, 0.3, 0.1]))
+    header = pick(rng, ["none", "names", "cloudcompare"], p=[0.6, 0.3, 0.1])
     cols = list(m.cols)
-    if header != "none" and rng.random() < 0.3:  # named columns may come in any order
+    # Named columns may come in any order; not after '//', which is CloudCompare's header only
+    # when X comes first (else it is a comment, for nkrr as for CloudCompare).
+    if header == "names" and rng.random() < 0.3:
         cols = [cols[i] for i in rng.permutation(len(cols))]
     pts_count = header == "none" and rng.random() < 0.15
     lines, notes = [], []
     if rng.random() < 0.04:
         lines.append("#" + comment_text(rng, long=True))
         notes.append("long comment")
-    for _ in range(int(rng.choice([0, 1, 3], p=[0.7, 0.2, 0.1]))):
-        lines.append(str(rng.choice(["#", "# ", "//"])) + comment_text(rng))
+    for _ in range(pick(rng, [0, 1, 3], p=[0.7, 0.2, 0.1])):
+        lines.append(pick(rng, ["#", "# ", "//"]) + comment_text(rng))
     if pts_count:
         lines.append(str(m.n))
         notes.append("PTS count")
@@ -518,8 +520,8 @@ def text_serialise(rng, m: TextModel) -> Base:
         group = {"x": 0, "y": 1, "z": 2, "r": 0, "g": 1, "b": 2, "nx": 0, "ny": 1, "nz": 2, "int": 0}
         kind = {"x": "xyz", "y": "xyz", "z": "xyz", "r": "rgb", "g": "rgb", "b": "rgb",
                 "nx": "nrm", "ny": "nrm", "nz": "nrm", "int": "int"}
-        pick = {k: int(rng.integers(len(v))) for k, v in TEXT_NAMES.items()}
-        names = [TEXT_NAMES[kind[c]][pick[kind[c]]][group[c]] for c, _ in cols]
+        spelling = {k: int(rng.integers(len(v))) for k, v in TEXT_NAMES.items()}
+        names = [TEXT_NAMES[kind[c]][spelling[kind[c]]][group[c]] for c, _ in cols]
         if header == "cloudcompare":
             names = [n.strip('"').upper() for n in names]
             lines.append("//" + sep.strip(" ").join(names) if sep.strip(" ") else "//" + " ".join(names))
@@ -532,11 +534,11 @@ def text_serialise(rng, m: TextModel) -> Base:
     interleave = rng.random() < 0.05  # comment and blank lines between points are allowed
     for i, r in enumerate(rows):
         if interleave and rng.random() < 0.05:
-            lines.append(str(rng.choice(["", "# " + comment_text(rng)])))
+            lines.append(pick(rng, ["", "# " + comment_text(rng)]))
         data_idx.append(len(lines))
         lines.append(r)
     final_eol = rng.random() < 0.9
-    boms = int(rng.choice([0, 1, 2], p=[0.88, 0.08, 0.04]))
+    boms = pick(rng, [0, 1, 2], p=[0.88, 0.08, 0.04])
     head = b"\xef\xbb\xbf" * boms
     data = head + (eol.join(lines) + (eol if final_eol else "")).encode()
     if pts_count:
@@ -544,7 +546,7 @@ def text_serialise(rng, m: TextModel) -> Base:
     elif sep_name in ("comma", "comma-space"):
         ext = "csv"
     else:
-        ext = str(rng.choice(["xyz", "txt", "asc", "xyz"]))
+        ext = pick(rng, ["xyz", "txt", "asc", "xyz"])
     what = (f"text .{ext}, sep {sep_name}, {eol_name}" + ("" if final_eol else ", no final EOL")
             + (f", {boms} BOM" if boms else "") + "".join(", " + s for s in notes) + f", {m.desc}")
     meta = {"lines": lines, "eol": eol, "final_eol": final_eol, "data_idx": data_idx, "head": head,
@@ -568,18 +570,18 @@ def las_base(rng, compress: bool) -> Base:
     """A LAS or LAZ file written by laspy (+ lazrs). The points are what laspy computes from the
     stored integers: X * scale + offset in float64."""
     n = point_count(rng)
-    version = str(rng.choice(["1.2", "1.4"]))
-    pf = int(rng.choice(LAS_FORMATS[version]))
+    version = pick(rng, ["1.2", "1.4"])
+    pf = pick(rng, LAS_FORMATS[version])
     for attempt in range(21):
         world, shape = random_cloud(rng, n) if attempt < 20 else integer_cloud(rng, n)
         size = float((world.max(0) - world.min(0)).max())
-        scale = np.full(3, float(rng.choice([0.01, 0.001, 0.0001])))
+        scale = np.full(3, pick(rng, [0.01, 0.001, 0.0001]))
         if size > 0 and rng.random() < 0.7:  # a scale that resolves the cloud, mostly
             scale[:] = max(min(10 ** np.floor(np.log10(size / 100)), 0.01), 0.0001)
         if rng.random() < 0.15:
             scale = rng.choice([0.01, 0.001, 0.0001], 3)
         centre = (world.max(0) + world.min(0)) / 2
-        how = rng.choice(["zero", "round", "exact-ish"], p=[0.3, 0.5, 0.2])
+        how = pick(rng, ["zero", "round", "exact-ish"], p=[0.3, 0.5, 0.2])
         offset = {"zero": np.zeros(3), "round": np.round(centre, -3),
                   "exact-ish": np.round(centre, 2)}[how]
         ints = np.rint((world - offset) / scale)
@@ -693,7 +695,8 @@ def e57_scan(imf, e57, local: np.ndarray, *, name: str, encoding: str, pose, rgb
         f = f"cartesian{a}"
         if encoding == "scaled":
             ints = np.rint(local[:, i] / scaled_step).astype(np.int64)
-            proto.set(f, libe57.ScaledIntegerNode(imf, int(ints.min()), int(ints.min()), int(ints.max()), scaled_step, 0.0))
+            # max > min: libE57Format cannot read back a field of 0 bits (all values equal).
+            proto.set(f, libe57.ScaledIntegerNode(imf, int(ints.min()), int(ints.min()), int(ints.max()) + 1, scaled_step, 0.0))
             arrays[f] = ints.astype(np.longlong)  # 'q': pye57 takes numpy's int64 'l' as 32-bit
         else:
             prec = libe57.E57_DOUBLE if encoding == "double" else libe57.E57_SINGLE
@@ -726,14 +729,14 @@ def e57_base(rng, path: Path, tag: str) -> Base:
     """An E57 file: one scan (sometimes two or three, points = the scans in order, each posed),
     written with libE57Format's node API, or with pye57's write_scan_raw (single precision)."""
     pye57.e57.uuid = FixedUuids(tag)
-    nscans = int(rng.choice([1, 2, 3], p=[0.85, 0.12, 0.03]))
+    nscans = pick(rng, [1, 2, 3], p=[0.85, 0.12, 0.03])
     e = pye57.E57(str(path), mode="w")
     world_all, notes = [], []
     raw_writer = rng.random() < 0.15
     for s in range(nscans):
         n = point_count(rng)
-        encoding = "single" if raw_writer else str(rng.choice(["single", "double", "scaled"], p=[0.4, 0.4, 0.2]))
-        pose_kind = str(rng.choice(["none", "identity", "translate", "rotate"], p=[0.3, 0.2, 0.25, 0.25]))
+        encoding = "single" if raw_writer else pick(rng, ["single", "double", "scaled"], p=[0.4, 0.4, 0.2])
+        pose_kind = pick(rng, ["none", "identity", "translate", "rotate"], p=[0.3, 0.2, 0.25, 0.25])
         if raw_writer and pose_kind == "none":
             pose_kind = "identity"  # write_scan_raw always writes a pose
         for attempt in range(21):
@@ -947,7 +950,7 @@ def refuse_ply(rng, base: Base):
         extra = rng.integers(0, 256, int(rng.integers(1, 65)), dtype=np.uint8).tobytes()
         return base.data + extra, f"{len(extra)} bytes after the binary body"
     if kind == "ascii_as_binary":
-        fmt = str(rng.choice(["binary_little_endian", "binary_big_endian"], p=[0.8, 0.2]))
+        fmt = pick(rng, ["binary_little_endian", "binary_big_endian"], p=[0.8, 0.2])
         i = next(i for i, l in enumerate(hdr) if l.split()[:1] == ["format"])
         hdr[i] = f"format {fmt} 1.0"
         return ply_rebuild(base, hdr_lines=hdr), f"header says {fmt}, body is ascii"
@@ -957,7 +960,7 @@ def refuse_ply(rng, base: Base):
     last_ok = v1 if (kind == "missing_value" or not m["vertex_last"]) else v1 - 1
     i = int(rng.integers(v0, last_ok))
     if kind == "extra_value":
-        tok = str(rng.choice(["9", "0", "9.5", "-1"]))
+        tok = pick(rng, ["9", "0", "9.5", "-1"])
         lines[i] = lines[i].rstrip(" ") + m["sep"] + tok
         return ply_rebuild(base, body_lines=lines), f"body line {i + 1} (vertex {i - v0}) has a value too many"
     toks = lines[i].rstrip(" ").rsplit(None, 1)
@@ -987,7 +990,7 @@ def refuse_text(rng, base: Base):
     i = idx[j]
     sep = m["sep"]
     if kind == "more":
-        lines[i] = lines[i] + sep + str(rng.choice(["7", "0.5", "-3", "255"]))
+        lines[i] = lines[i] + sep + pick(rng, ["7", "0.5", "-3", "255"])
         return text_rebuild(base, lines), f"data line {j + 1} (file line {i + 1}) has a value too many"
     spans = _token_spans(lines[i])
     cut = spans[-1][0]
@@ -1008,7 +1011,7 @@ def refuse_las(rng, base: Base):
         options.append("record_len_up")
     kind = options[int(rng.integers(len(options)))]
     if kind == "count_up":
-        new = n + int(rng.choice([1, 2, 10, 1000, 2**20]))
+        new = n + pick(rng, [1, 2, 10, 1000, 2**20])
         if m["version"] == "1.4":
             struct.pack_into("<Q", data, 247, new)
             if m["pf"] < 6:
@@ -1031,7 +1034,7 @@ def refuse_las(rng, base: Base):
 def refuse_e57(rng, base: Base):
     """A checksum that does not match its page, or a scan declaring more points than stored."""
     data = bytearray(base.data)
-    kind = str(rng.choice(["crc_xml", "crc_data", "count_up"], p=[0.35, 0.35, 0.3]))
+    kind = pick(rng, ["crc_xml", "crc_data", "count_up"], p=[0.35, 0.35, 0.3])
     xml_off = base.meta["xml"][0]
     if kind == "count_up":
         xml = e57_xml(base)
@@ -1040,7 +1043,7 @@ def refuse_e57(rng, base: Base):
         if hits:
             h = hits[int(rng.integers(len(hits)))]
             old = int(h.group(1))
-            new = old + int(rng.choice([1, 7, 1000]))
+            new = old + pick(rng, [1, 7, 1000])
             xml = xml[:h.start(1)] + str(new).encode() + xml[h.end(1):]
             return e57_replace_xml(base, xml), f"a scan's recordCount {new}, {old} points stored (checksums fixed)"
         kind = "crc_xml"
@@ -1083,8 +1086,8 @@ def pick_offset(rng, base: Base, size: int) -> int:
 def byte_mutation(rng, base: Base, data: bytearray) -> str:
     """One random byte-level mutation of `data`, in place; returns what it did."""
     size = len(data)
-    kind = str(rng.choice(["flip", "overwrite", "extreme", "insert", "delete", "duplicate", "zero"],
-                          p=[0.25, 0.15, 0.15, 0.12, 0.12, 0.11, 0.10]))
+    kind = pick(rng, ["flip", "overwrite", "extreme", "insert", "delete", "duplicate", "zero"],
+                          p=[0.25, 0.15, 0.15, 0.12, 0.12, 0.11, 0.10])
     at = pick_offset(rng, base, size)
     if kind == "flip":
         k = int(rng.integers(1, 17))
@@ -1130,7 +1133,7 @@ def line_mutation(rng, lines: list[str], idx: list[int]) -> tuple[list[str], str
     """One line-level mutation (text, ascii PLY): delete, duplicate or swap lines, insert a garbage
     token, or replace a number with an odd one."""
     lines = list(lines)
-    kind = str(rng.choice(["delete", "duplicate", "swap", "garbage", "number"], p=[0.15, 0.15, 0.15, 0.2, 0.35]))
+    kind = pick(rng, ["delete", "duplicate", "swap", "garbage", "number"], p=[0.15, 0.15, 0.15, 0.2, 0.35])
     i = idx[int(rng.integers(len(idx)))] if idx and rng.random() < 0.85 else int(rng.integers(len(lines)))
     if kind == "delete":
         del lines[i]
@@ -1145,7 +1148,7 @@ def line_mutation(rng, lines: list[str], idx: list[int]) -> tuple[list[str], str
     spans = _token_spans(lines[i])
     s, tok = spans[int(rng.integers(len(spans)))]
     if kind == "garbage":
-        g = str(rng.choice(["abc", "#", "//", "\x00", "\x7f", "é", "1 2", "\t", ";;", ",", "ply", "end_header"]))
+        g = pick(rng, ["abc", "#", "//", "\x00", "\x7f", "é", "1 2", "\t", ";;", ",", "ply", "end_header"])
         lines[i] = lines[i][:s] + g + " " + lines[i][s:]
         return lines, f"token {g!r} inserted in line {i + 1}"
     bad = BAD_NUMBERS[int(rng.integers(len(BAD_NUMBERS)))]
@@ -1162,11 +1165,11 @@ def ply_header_mutation(rng, base: Base) -> tuple[bytes, str]:
         n = int(w[2])
         w[2] = str(pick(rng, [0, 1, n - 1, n + 1, 2 * n, 2**31, 2**32, 2**63, 2**64 - 1, 2**64, -1]))
     elif w[:1] == ["property"] and len(w) >= 3:
-        w[-2 if w[1] != "list" else int(rng.integers(2, 4))] = str(rng.choice(list(PLY_NP) + ["int64", "half", "list"]))
+        w[-2 if w[1] != "list" else int(rng.integers(2, 4))] = pick(rng, list(PLY_NP) + ["int64", "half", "list"])
     elif w[:1] == ["format"]:
-        w[1 + int(rng.integers(2))] = str(rng.choice(["ascii", "binary_little_endian", "binary_big_endian", "2.0", "1", "binary"]))
+        w[1 + int(rng.integers(2))] = pick(rng, ["ascii", "binary_little_endian", "binary_big_endian", "2.0", "1", "binary"])
     else:
-        hdr.insert(i, str(rng.choice(["element vertex 3", "property float x", "format ascii 1.0", "end_header", "bogus"])))
+        hdr.insert(i, pick(rng, ["element vertex 3", "property float x", "format ascii 1.0", "end_header", "bogus"]))
         return ply_rebuild(base, hdr_lines=hdr), f"header line inserted before line {i + 1}"
     old = hdr[i]
     hdr[i] = " ".join(w)
@@ -1202,7 +1205,7 @@ def e57_xml_mutation(rng, base: Base) -> tuple[bytes, str]:
     that the XML parser and the scan reader see it."""
     xml = e57_xml(base)
     nums = list(re.finditer(rb"-?\d+(\.\d+)?([eE][-+]?\d+)?", xml))
-    kind = str(rng.choice(["number", "type", "delete", "byte"], p=[0.5, 0.15, 0.15, 0.2]))
+    kind = pick(rng, ["number", "type", "delete", "byte"], p=[0.5, 0.15, 0.15, 0.2])
     if kind == "number" and nums:
         h = nums[int(rng.integers(len(nums)))]
         v = float(h.group())
@@ -1224,7 +1227,7 @@ def e57_xml_mutation(rng, base: Base) -> tuple[bytes, str]:
             return e57_replace_xml(base, xml[:h.start()] + xml[h.end():]), f"XML element {h.group(1)!r} deleted"
     b = bytearray(xml)
     at = int(rng.integers(len(b)))
-    b[at] = int(rng.choice([0, 0x3c, 0x3e, 0x22, 0x20, 0xff, int(rng.integers(256))]))
+    b[at] = pick(rng, [0, 0x3c, 0x3e, 0x22, 0x20, 0xff, int(rng.integers(256))])
     return e57_replace_xml(base, bytes(b)), f"XML byte {at} -> 0x{b[at]:02x}"
 
 
@@ -1248,7 +1251,7 @@ def derive_any(rng, base: Base) -> tuple[bytes, str]:
     if fmt == "e57" and r < 0.3:
         return e57_xml_mutation(rng, base)
     data = bytearray(base.data)
-    k = int(rng.choice([1, 2, 3], p=[0.7, 0.2, 0.1]))
+    k = pick(rng, [1, 2, 3], p=[0.7, 0.2, 0.1])
     descs = [byte_mutation(rng, base, data) for _ in range(k)]
     if fmt == "e57" and rng.random() < 0.5 and len(data) == len(base.data):
         # Same length: fix the checksums, so that the damage reaches the parser.
@@ -1282,7 +1285,8 @@ def make_group(rng, fmt: str, tmp: Path, tag: str) -> list[Case]:
         base, variants = write_base(rng, fmt, tmp, tag), []
     cases = [Case(fmt, "exact", base.ext, base.data, base.what, base)]
     cases += [Case(fmt, "exact", v.ext, v.data, "variant: " + v.what, v) for v in variants]
-    for kind in rng.choice(DERIVED_KINDS, DERIVED_PER_BASE[fmt], p=DERIVED_WEIGHTS):
+    for _ in range(DERIVED_PER_BASE[fmt]):
+        kind = pick(rng, DERIVED_KINDS, p=DERIVED_WEIGHTS)
         src = variants[0] if variants and rng.random() < 0.5 else base
         got = None
         if kind == "refuse_or_warn":
@@ -1294,7 +1298,7 @@ def make_group(rng, fmt: str, tmp: Path, tag: str) -> list[Case]:
         elif kind == "any":
             got = derive_any(rng, src)
         data, what = got
-        cases.append(Case(fmt, str(kind), src.ext, data, f"{what} | of: {src.what}", src))
+        cases.append(Case(fmt, kind, src.ext, data, f"{what} | of: {src.what}", src))
     return cases
 
 
@@ -1399,7 +1403,8 @@ class CheckerRun:
                 outcome = "hang" if killed else "crash"
                 self.results[self.rows[done]["case"]] = {
                     "case": self.rows[done]["case"], "outcome": outcome, "ok": False, "ms": None,
-                    "detail": f"checker exited with status {rc} on this case; stderr: {stderr.strip()}"}
+                    "detail": (f"the checker printed nothing for {self.case_timeout * 2 + 30:.0f} s and was killed"
+                               if killed else f"checker exited with status {rc} on this case; stderr: {stderr.strip()}")}
                 nxt = done + 1
             self.restarts += 1
             if nxt >= len(self.rows):
@@ -1632,8 +1637,10 @@ def main() -> int:
         return 2
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    if (out / "failures").exists():
-        shutil.rmtree(out / "failures")  # failures of an earlier run would be mistaken for this one's
+    # Failures and batches of an earlier (perhaps interrupted) run would mix with this one's.
+    for old in [out / "failures", *out.glob("batch-*")]:
+        if old.exists():
+            shutil.rmtree(old)
 
     t0 = time.time()
     gen_time = 0.0
@@ -1643,6 +1650,7 @@ def main() -> int:
     failures: list[dict] = []
     kept: Counter = Counter()
     pending = None  # (batch index, rows, CheckerRun, manifest)
+    checked = [0]   # cases whose verdicts are in
 
     def collect(p):
         b, rows, run, manifest = p
@@ -1651,7 +1659,8 @@ def main() -> int:
         results.update(got)
         record_failures(rows, got, out, args.keep_failures, kept, failures)
         shutil.rmtree(manifest.parent)
-        done = len(rows_by_case)
+        checked[0] += len(rows)
+        done = checked[0]
         bad = sum(1 for r in rows if not got.get(r["case"], {"ok": True}).get("ok"))
         print(f"batch {b + 1}/{nbatches}: {len(rows)} cases, {bad} failed "
               f"(total {len(failures)} of {done}), waited {time.time() - tc:.1f} s for the "

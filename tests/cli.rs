@@ -332,3 +332,27 @@ fn weights_flag_uses_the_given_prior_and_rejects_bad_files() {
     assert!(!std::path::Path::new(&out).exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A setting the run will not use is said before any work, one rule for every setting of the
+/// table (it was dropped without a word: `--glb meshopt` with an `.stl`).
+#[test]
+fn settings_that_do_not_apply_are_warned_of() {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("cli");
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("unused.stl").to_string_lossy().into_owned();
+    let (code, _, err) = nkrr(&[
+        "reconstruct", &eval("spot-3k.ply"), "-o", &out, "--method", "network", "--resolution", "32", "--glb", "meshopt", "--m", "800",
+        "--no-tune",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let first = err.lines().position(|l| l.starts_with("read ")).unwrap();
+    let before: Vec<&str> = err.lines().take(first).collect();
+    assert!(before.contains(&"warning: --glb meshopt has no effect and is ignored: it needs a .glb output"), "{err}");
+    assert!(before.contains(&"warning: --m 800 has no effect and is ignored: it needs the nkrr method (--method nkrr)"), "{err}");
+    assert!(before.contains(&"warning: --steps 0 has no effect and is ignored: it needs the nkrr method (--method nkrr)"), "{err}");
+    // Settings that apply, and defaults, are not mentioned.
+    let glb = dir.join("used.glb").to_string_lossy().into_owned();
+    let (code, _, err) = nkrr(&["reconstruct", &eval("spot-3k.ply"), "-o", &glb, "--method", "network", "--resolution", "32", "--glb", "meshopt"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("no effect"), "{err}");
+}

@@ -195,3 +195,80 @@ fn a_truncated_laz_says_where() {
     assert!(e.contains("byte") && e.contains("point"), "{e}");
     assert!(e.contains("chunk"), "{e}");
 }
+
+/// A LAS whose variable-length record runs past the file's end names the record (it said
+/// "header: failed to fill whole buffer").
+#[test]
+fn a_las_record_past_the_end_is_named() {
+    let mut las = std::fs::read(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/formats/spot-las12-pf3.las")).unwrap();
+    // One VLR of 60000 declared bytes between the header (227 bytes) and the points.
+    let header = u16::from_le_bytes(las[94..96].try_into().unwrap()) as usize;
+    let mut vlr = vec![0u8; 54];
+    vlr[2..9].copy_from_slice(b"nkrr-fz");
+    vlr[18..20].copy_from_slice(&7u16.to_le_bytes());
+    vlr[52..54].copy_from_slice(&60000u16.to_le_bytes());
+    las.splice(header..header, vlr);
+    las[100..104].copy_from_slice(&1u32.to_le_bytes());
+    let offset = u32::from_le_bytes(las[96..100].try_into().unwrap()) + 54;
+    las[96..100].copy_from_slice(&offset.to_le_bytes());
+    let cut = &las[..header + 54 + 100];
+    let e = read_err(cut, "vlr.las");
+    assert!(e.contains("variable-length record 0") && e.contains("60000 bytes") && e.contains("past the file's end"), "{e}");
+    assert!(!e.contains("failed to fill whole buffer"), "{e}");
+}
+
+/// A LAZ with 16 damaged bytes in the middle of its points says the data is damaged, not that
+/// the file is truncated.
+#[test]
+fn a_damaged_laz_is_not_called_truncated() {
+    let full = std::fs::read(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/formats/spot-las12-pf1.laz")).unwrap();
+    let mut bad = full.clone();
+    let mid = full.len() / 2;
+    for b in &mut bad[mid..mid + 16] {
+        *b ^= 0x5a;
+    }
+    let e = read_err(&bad, "damaged.laz");
+    assert!(e.contains("damaged") && e.contains("points 0.."), "{e}");
+    assert!(!e.contains("truncated"), "{e}");
+}
+
+/// CRC-32C (Castagnoli), as E57 pages carry it, to damage a page without its checksum noticing.
+fn crc32c(data: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in data {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = (crc >> 1) ^ if crc & 1 == 1 { 0x82f6_3b78 } else { 0 };
+        }
+    }
+    !crc
+}
+
+/// An E57 with a damaged data packet (its page checksum made to match) or a damaged page says
+/// the point data is damaged, not "Internal error: ... logic error" or "failed to fill whole
+/// buffer".
+#[test]
+fn a_damaged_e57_packet_is_named_as_damage() {
+    let full = std::fs::read(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/formats/spot-single.e57")).unwrap();
+    // The points' section header is at the XML's fileOffset (48); its data starts at byte 16
+    // of it: a data packet's header (type, flags, length, byte-stream count).
+    let data = u64::from_le_bytes(full[48 + 16..48 + 24].try_into().unwrap()) as usize;
+    assert_eq!(full[data], 1, "a data packet");
+    let reseal = |b: &mut Vec<u8>, at: usize| {
+        let page = at / 1024 * 1024;
+        let crc = crc32c(&b[page..page + 1020]);
+        b[page + 1020..page + 1024].copy_from_slice(&crc.to_be_bytes());
+    };
+    for (offset, value) in [(0usize, 0x80u8), (2, 0x80), (4, 0), (5, 0x80), (15, 0x80)] {
+        let mut bad = full.clone();
+        bad[data + offset] = value;
+        reseal(&mut bad, data + offset);
+        let e = read_err(&bad, "damaged.e57");
+        assert!(e.contains("point data is damaged"), "byte {offset}: {e}");
+        assert!(!e.contains("cut short"), "byte {offset}: {e}");
+    }
+    let mut bad = full.clone();
+    bad[data + 100] ^= 0xff;
+    let e = read_err(&bad, "page.e57");
+    assert!(e.contains("checksum does not match") && !e.contains("cut short"), "{e}");
+}

@@ -476,3 +476,44 @@ fn meshing_progress_follows_the_evaluations() {
     assert!(*seen.last().unwrap() < total, "the last report comes before the last chunk is evaluated");
     assert!(total - seen.last().unwrap() <= 32_768);
 }
+
+/// A sphere of 2,000 points with one stray point 1e7 away reconstructs: the shape checks run
+/// on the points the stray-point filter keeps (it was refused as "all points lie on one line").
+/// With the filter off, the refusal names the far point instead of calling the sphere a line.
+/// A filter set to take half of a clean cloud warns with the count.
+#[test]
+fn a_far_stray_point_does_not_make_the_cloud_a_line() {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let mut positions: Vec<[f32; 3]> = (0..2000)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (i as f64 + 0.5) / 2000.0;
+            let r = (1.0 - y * y).sqrt();
+            let t = golden * i as f64;
+            [(0.3 * r * t.cos()) as f32, (0.3 * y) as f32, (0.3 * r * t.sin()) as f32]
+        })
+        .collect();
+    positions.push([1e7, 0.0, 0.0]);
+    let cloud = PointCloud { positions, ..Default::default() };
+    let rec = reconstruct(&cloud, &settings());
+    assert!(rec.mesh.is_watertight() && rec.mesh.indices.len() > 3000, "{} triangles", rec.mesh.indices.len() / 3);
+    let b = rec.mesh.bounds().unwrap();
+    assert!(b.max[0] < 0.4 && b.min[0] > -0.4, "{b:?}");
+    assert!(rec.notices.iter().any(|n| n.contains("dropped 1 stray points")), "{:?}", rec.notices);
+    assert!(rec.warnings.is_empty(), "{:?}", rec.warnings);
+
+    let gpu = nkrr::gpu::Gpu::new_blocking().unwrap();
+    let engine = pollster::block_on(Engine::new(gpu)).unwrap();
+    let keep = Settings { outliers: None, ..settings() };
+    let e = pollster::block_on(engine.reconstruct(&cloud, &keep, &mut |_| true)).err().expect("refused").to_string();
+    assert!(e.contains("only because of 1 point(s) far from the rest") && e.contains("--outliers"), "{e}");
+    assert!(!e.contains("all points lie on one line"), "{e}");
+
+    // The filter at ratio 1 takes about half of this even sphere: a warning with the count.
+    let mut even = cloud.clone();
+    even.positions.pop();
+    let harsh = Settings { outliers: Some(1.0), ..settings() };
+    let rec = pollster::block_on(engine.reconstruct(&even, &harsh, &mut |_| true)).unwrap();
+    let w = rec.warnings.join(" | ");
+    assert!(w.contains("stray-point filter dropped") && w.contains("of 2000 points") && w.contains("--keep-outliers"), "{w}");
+    assert!(!rec.notices.iter().any(|n| n.contains("stray")), "{:?}", rec.notices);
+}

@@ -37,23 +37,33 @@ fn check_header(b: &[u8]) -> Result<(), String> {
     Ok(())
 }
 
-/// A failure while decoding a scan's points, in the user's terms: a damaged data packet makes
-/// the `e57` crate report its own "Internal error: ... logic error", which sounds like a bug in
-/// the reader rather than a damaged file.
-fn point_error(name: &str, read: u64, e: ::e57::Error) -> String {
-    match e {
-        ::e57::Error::Internal { .. } | ::e57::Error::Invalid { .. } => format!(
-            "{name}, after point {read}: the compressed point data is damaged (a corrupt data packet: the file \
-             was changed or broken after it was written); the E57 reader said: {e}"
-        ),
-        ::e57::Error::Read { .. } => format!("{name}, after point {read}: the point data cannot be read (is the file cut short?): {e}"),
-        _ => format!("{name}, point {read}: {e}"),
-    }
+/// A failure while decoding a scan's points, in the user's terms: a damaged data packet made
+/// the `e57` crate report "Internal error: ... logic error" (which reads as a bug in the reader)
+/// or "failed to fill whole buffer" (which reads as a cut file). `whole`: the file is as long
+/// as its header says, so running out of bytes is damage, not a cut.
+fn point_error(name: &str, read: u64, e: ::e57::Error, whole: bool) -> String {
+    let text = e.to_string();
+    let why = match e {
+        _ if text.contains("checksum") => {
+            "a page of the file is damaged: its checksum does not match (the file was changed or broken after it was written)"
+        }
+        ::e57::Error::Internal { .. } | ::e57::Error::Invalid { .. } => {
+            "the compressed point data is damaged (a corrupt data packet: the file was changed or broken after it was written)"
+        }
+        ::e57::Error::Read { .. } if whole => {
+            "the compressed point data is damaged (a data packet runs past the data that the file holds, which is as long as its header says)"
+        }
+        ::e57::Error::Read { .. } => "the point data ends early: the file is shorter than its header says (cut short?)",
+        _ => return format!("{name}, point {read}: {text}"),
+    };
+    format!("{name}, after point {read}: {why}; the E57 reader said: {text}")
 }
 
 /// Reads every scan of an E57 file into one cloud.
 pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
     check_header(bytes)?;
+    // The header's physical length (byte 16): a file at least this long was not cut short.
+    let whole = bytes.len() as u64 >= u64_at(bytes, 16);
     let mut reader = ::e57::E57Reader::new(Cursor::new(bytes)).map_err(|e| e.to_string())?;
     let scans = reader.pointclouds();
     if scans.is_empty() {
@@ -82,14 +92,14 @@ pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
         posed += usize::from(scan.transform.is_some());
         let name = scan.name.clone().unwrap_or_else(|| format!("scan {i}"));
         comments.push(format!("{name}: {} points{}", scan.records, if scan.transform.is_some() { ", posed" } else { "" }));
-        let mut points = reader.pointcloud_simple(scan).map_err(|e| format!("{name}: {e}"))?;
+        let mut points = reader.pointcloud_simple(scan).map_err(|e| point_error(&name, 0, e, whole))?;
         points.apply_pose(true);
         points.spherical_to_cartesian(true);
         points.normalize_color(true);
         points.intensity_to_color(false);
         let mut read = 0u64;
         for p in points {
-            let p = p.map_err(|e| point_error(&name, read, e))?;
+            let p = p.map_err(|e| point_error(&name, read, e, whole))?;
             read += 1;
             if read > scan.records {
                 return Err(format!("{name} yields more points than the {} it declares", scan.records));

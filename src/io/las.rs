@@ -324,8 +324,9 @@ pub fn read_las(bytes: &[u8]) -> Result<ScanFile, String> {
                 let whole = table != u64::MAX && table > layout.offset_to_points && table + 8 <= file_len as u64;
                 let why = if e.kind() == std::io::ErrorKind::UnexpectedEof && whole {
                     format!(
-                        "corrupt compressed data: decoding ran on to byte {at} of {file_len}, past the points' data, which \
-                         ends where the chunk table starts (byte {table}); the file is whole but damaged"
+                        "the compressed point data is damaged (corrupt or missing bytes): decoding ran on to byte {at} of \
+                         {file_len}, past the points' data, which ends where the chunk table starts (byte {table}); the \
+                         table is in place, so the file was not simply cut short at its end"
                     )
                 } else if e.kind() == std::io::ErrorKind::UnexpectedEof {
                     format!("the compressed data ran out at byte {at} of {file_len}, while decoding these points: the file is truncated")
