@@ -19,11 +19,17 @@ echo "== scan-format fixtures: the committed files are what laspy/lazrs and pye5
 echo "== output meshes load in trimesh (GLB, PLY, OBJ, STL)"
 NKRR_BIN=target/debug/nkrr .venv-formats/bin/python -m pytest -q -p no:cacheprovider tests/formats
 
+echo "== the cloud readers against independent writers (laspy, pye57, Python's PLY and text): 3000 cases"
+.venv-formats/bin/python scripts/fuzz_readers.py --cases 3000 --seed 1 --checker target/debug/examples/read_oracle --out target/fuzz-ci
+
 echo "== training smoke test"
 .venv/bin/python -m pytest -q -p no:cacheprovider training/test_smoke.py
 
 echo "== web build"
 NKRR_BUILD_ONLY=1 bash scripts/serve.sh
+
+echo "== dist/ deploys anywhere: no live-reload code, built or served"
+bash scripts/check_dist.sh
 
 echo "== browser tests"
 node --test --test-concurrency=1 tests/browser/

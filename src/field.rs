@@ -303,6 +303,16 @@ pub fn split_rows(n: usize, inputs: usize, keep: Option<usize>, held: usize, see
     RowSplit { tune, held }
 }
 
+/// How many of `pairs` training pairs the tuning sees under `settings`: what [`split_rows`]
+/// leaves to tune on once the held-out pairs are set aside, at most [`Settings::tune_pairs`].
+/// The inducing points are drawn from these rows, so m cannot exceed it (see
+/// [`crate::plan::inducing_points`], which decides m).
+pub fn tuning_rows(pairs: usize, settings: &Settings) -> usize {
+    let held = if settings.select_by == SelectBy::HeldOut { HELD_OUT_MAX.min(pairs / 5) } else { 0 };
+    let rest = pairs - held;
+    settings.tune_pairs.map_or(rest, |k| k.min(rest))
+}
+
 /// Initialises (Z from rows of X, length-scales from the features' spread) and tunes the
 /// Nyström KRR with `m` inducing points on [`Settings::tune_pairs`] of the pairs (see
 /// [`split_rows`]), keeping the parameters with the lowest error on held-out pairs or, as the
@@ -323,7 +333,14 @@ pub async fn fit(
     let subset = split.tune.as_ref().map(|rows| all.select(rows));
     let validation = (!split.held.is_empty()).then(|| all.select(&split.held));
     let problem = subset.as_ref().unwrap_or(all);
-    let m = m.clamp(1, problem.n());
+    // m is the plan's (crate::plan::inducing_points), never changed here: a stage that caps it
+    // again changes the user's setting without a word.
+    if m == 0 || m > problem.n() {
+        return Err(FitError::Krr(KrrError::Setting(format!(
+            "{m} inducing points planned for {} tuning pairs: the plan and the pairs disagree (a bug)",
+            problem.n()
+        ))));
+    }
     let init = krr::init_params(problem, m, 3, LengthScaleInit::default());
     // Tuning on a subsample minimises its estimate of the objective on all pairs.
     let ridge = krr::Ridge { full_n: subset.as_ref().map(|_| all.n()), ..krr::Ridge::new(settings.lambda, m) };

@@ -167,6 +167,7 @@ impl Engine {
         // what the user asked for.
         let plan = self.memory_plan(cloud.len(), cloud.colors.is_some(), settings);
         notices.extend(plan.actions.iter().map(|a| format!("to fit in memory, nkrr will {a}")));
+        notices.extend(plan.decisions.iter().map(|d| format!("nkrr will {d}")));
         let max_points = plan.n.min(settings.max_points);
         let mut seen = if cloud.len() > max_points {
             notices.push(format!("the cloud has {} points; the network sees a uniform subsample of {max_points}", cloud.len()));
@@ -209,7 +210,12 @@ impl Engine {
             timings.push(("pairs", now() - t));
             let t = now();
             let mut report = |step: usize, loss: f64| progress(&Stage::Tuning { step, of: settings.steps, loss });
-            let (fit, summary) = field::fit(&self.gpu, &pairs, settings, plan.m.max(1), &mut report).await?;
+            // The plan's m, for the points the stray-point filter kept (fewer points, fewer pairs).
+            let (m, fewer) = crate::plan::inducing_points(settings, plan.m, points.len());
+            if m < plan.m {
+                notices.extend(fewer.map(|d| format!("after the stray-point filter, nkrr will {d}")));
+            }
+            let (fit, summary) = field::fit(&self.gpu, &pairs, settings, m, &mut report).await?;
             timings.push(("tuning", now() - t));
             tuning = Some(summary);
             Field::Krr(fit)

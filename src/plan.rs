@@ -80,6 +80,27 @@ pub struct MemoryPlan {
     pub host_budget: Option<u64>,
     /// What the pipeline will change to fit, one sentence each (empty when everything fits).
     pub actions: Vec<String>,
+    /// What the run will do otherwise than asked, for a reason other than memory, one sentence
+    /// each (m capped at the pairs the tuning sees).
+    pub decisions: Vec<String>,
+}
+
+/// The inducing points for a regression on `points` points: `m` (what the settings and the
+/// memory allow), at most the pairs the tuning sees ([`crate::field::tuning_rows`]), since the
+/// inducing points are drawn from those rows; and, when that is fewer than `settings.m`, the
+/// sentence that says so. The one place m is decided from the pairs: the preflight calls it
+/// with the planned points, the pipeline again with the points the stray-point filter kept.
+pub fn inducing_points(settings: &Settings, m: usize, points: usize) -> (usize, Option<String>) {
+    let pairs = points * (1 + settings.extra_per_point(points));
+    let rows = crate::field::tuning_rows(pairs, settings).max(1);
+    if m <= rows {
+        return (m, None);
+    }
+    let why = match settings.tune_pairs {
+        Some(k) if k <= rows => format!("the tuning sees {rows} training pairs (--tune-pairs {k}, \"Pairs for tuning\")"),
+        _ => format!("the tuning sees {rows} training pairs ({points} points)"),
+    };
+    (rows, Some(format!("use m = {rows} inducing points, not {}: {why}, and the inducing points are drawn from them", settings.m)))
 }
 
 const MIB: f64 = 1024.0 * 1024.0;
@@ -123,11 +144,11 @@ impl MemoryPlan {
             "limits    largest buffer {} (adapter){budget}; the adapter's total memory is not knowable through WebGPU",
             mib(self.binding_limit)
         ));
-        if self.actions.is_empty() {
+        if self.actions.is_empty() && self.decisions.is_empty() {
             let m = if self.nkrr { format!(", m = {}", self.m) } else { String::new() };
             out.push(format!("fits: {} points{m}, as set", self.n));
         }
-        out.extend(self.actions.iter().map(|a| format!("will {a}")));
+        out.extend(self.actions.iter().chain(&self.decisions).map(|a| format!("will {a}")));
         out
     }
 }
@@ -152,7 +173,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         n_fit = n_fit.min(krr_gpu::max_pairs(b, d) / rows);
     }
     let m_fit = krr_gpu::max_inducing_points(b);
-    let mut m = (settings.m as u64).clamp(1, 2 * n);
+    let mut m = settings.m.max(1) as u64;
     let nn = points as u64;
     let attrs = 12 * nn + if colours { 4 * nn } else { 0 };
     if n > n_fit {
@@ -180,6 +201,12 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     }
     let per_point = settings.extra_per_point(n as usize) as u64;
     let np = (1 + per_point) * n;
+    let mut decisions = Vec::new();
+    if nkrr {
+        let (fit, why) = inducing_points(settings, m as usize, n as usize);
+        m = fit as u64;
+        decisions.extend(why);
+    }
     let planes = Footprint { gpu: net_gpu::planes_bytes(cfg), ..Default::default() };
     let stage = |name: &'static str, f: Footprint| StagePlan {
         name,
@@ -253,6 +280,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         binding_limit: b,
         host_budget: device.host_budget,
         actions,
+        decisions,
     }
 }
 
@@ -291,6 +319,41 @@ mod tests {
         let p = memory_plan(5_000_000, false, &Settings { across: None, ..s }, &cfg(), &device(128 << 20));
         assert_eq!(p.n, (128 << 20) / 256);
         assert!(p.stages.iter().all(|s| s.largest_binding <= p.binding_limit), "{:?}", p.stages);
+    }
+
+    #[test]
+    fn m_beyond_the_tuning_pairs_is_capped_and_said() {
+        // `--m 5000 --tune-pairs 1000`: the tuning sees 1000 pairs, from which Z is drawn.
+        let s = Settings { m: 5000, tune_pairs: Some(1000), ..Settings::default() };
+        let p = memory_plan(3000, false, &s, &cfg(), &DeviceFacts::webgpu_default());
+        assert_eq!(p.m, 1000);
+        assert_eq!(p.decisions.len(), 1, "{:?}", p.decisions);
+        assert!(p.decisions[0].contains("m = 1000 inducing points, not 5000") && p.decisions[0].contains("--tune-pairs 1000"), "{:?}", p.decisions);
+        assert!(p.lines().iter().any(|l| l.starts_with("will use m = 1000")), "{:?}", p.lines());
+        assert!(!p.lines().iter().any(|l| l.starts_with("fits:")), "{:?}", p.lines());
+        // Within the pairs: as set, nothing said.
+        let p = memory_plan(3000, false, &Settings { m: 800, ..s.clone() }, &cfg(), &DeviceFacts::webgpu_default());
+        assert_eq!((p.m, p.decisions.len()), (800, 0));
+        // Few points: the pairs themselves are the cap.
+        let p = memory_plan(100, false, &Settings { m: 5000, tune_pairs: None, ..s }, &cfg(), &DeviceFacts::webgpu_default());
+        let pairs = 100 * (1 + Settings::default().extra_per_point(100));
+        assert_eq!(p.m, crate::field::tuning_rows(pairs, &Settings::default()));
+        assert!(p.decisions[0].contains("(100 points)"), "{:?}", p.decisions);
+    }
+
+    #[test]
+    fn the_tuning_rows_are_what_the_split_leaves() {
+        for select_by in [crate::settings::SelectBy::HeldOut, crate::settings::SelectBy::Training] {
+            for tune_pairs in [None, Some(16), Some(1000), Some(4000)] {
+                let s = Settings { select_by, tune_pairs, ..Settings::default() };
+                for pairs in [5, 80, 999, 4000, 5001, 12_345, 40_000] {
+                    let held = if select_by == crate::settings::SelectBy::HeldOut { crate::field::HELD_OUT_MAX } else { 0 };
+                    let split = crate::field::split_rows(pairs, pairs / 4, tune_pairs, held, 5);
+                    let tuned = split.tune.as_ref().map_or(pairs, Vec::len);
+                    assert_eq!(crate::field::tuning_rows(pairs, &s), tuned, "{select_by:?} {tune_pairs:?} {pairs}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -356,3 +356,16 @@ fn settings_that_do_not_apply_are_warned_of() {
     assert_eq!(code, 0, "{err}");
     assert!(!err.contains("no effect"), "{err}");
 }
+
+/// `--m 5000 --tune-pairs 1000`: the preflight names the m the run will use and why, as the run
+/// does (it ran with m 1000 and said so only inside the tuning summary).
+#[test]
+fn the_preflight_names_an_m_capped_by_the_tuning_pairs() {
+    let (code, out, err) = nkrr(&["info", &eval("spot-3k.ply"), "--m", "5000", "--tune-pairs", "1000"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("memory:     will use m = 1000 inducing points, not 5000: the tuning sees 1000 training pairs (--tune-pairs 1000"), "{out}");
+    assert!(!out.contains("fits:"), "{out}");
+    let (code, out, _) = nkrr(&["info", &eval("spot-3k.ply"), "--m", "800"]);
+    assert_eq!(code, 0);
+    assert!(out.contains("memory:     fits: 3000 points, m = 800, as set"), "{out}");
+}

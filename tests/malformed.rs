@@ -206,13 +206,19 @@ fn a_las_record_past_the_end_is_named() {
     let mut vlr = vec![0u8; 54];
     vlr[2..9].copy_from_slice(b"nkrr-fz");
     vlr[18..20].copy_from_slice(&7u16.to_le_bytes());
-    vlr[52..54].copy_from_slice(&60000u16.to_le_bytes());
+    vlr[20..22].copy_from_slice(&60000u16.to_le_bytes());
     las.splice(header..header, vlr);
     las[100..104].copy_from_slice(&1u32.to_le_bytes());
     let offset = u32::from_le_bytes(las[96..100].try_into().unwrap()) + 54;
     las[96..100].copy_from_slice(&offset.to_le_bytes());
     let cut = &las[..header + 54 + 100];
     let e = read_err(cut, "vlr.las");
+    // A record that fits is read past (the length is at byte 20 of its header).
+    let mut ok = las.clone();
+    ok[header + 20..header + 22].copy_from_slice(&10u16.to_le_bytes());
+    ok.splice(header + 54..header + 54, [7u8; 10]);
+    ok[96..100].copy_from_slice(&(offset + 10).to_le_bytes());
+    assert_eq!(read_ok(&ok, "vlr-ok.las").cloud.len(), 3000);
     assert!(e.contains("variable-length record 0") && e.contains("60000 bytes") && e.contains("past the file's end"), "{e}");
     assert!(!e.contains("failed to fill whole buffer"), "{e}");
 }

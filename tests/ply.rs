@@ -1682,3 +1682,16 @@ proptest! {
         }
     }
 }
+
+/// Binary values that happen to be the bytes of digits and line breaks (ushort 0x0d30: '0' and
+/// CR) are still binary: the fuzzer found such a file refused as a text body.
+#[test]
+fn binary_values_that_look_like_digits_are_binary() {
+    let props = "property ushort x\nproperty ushort y\nproperty ushort z\n";
+    let mut bytes = header_only("binary_little_endian", props, 4).into_bytes();
+    for i in 0..12u16 {
+        bytes.extend_from_slice(&(0x0d30 + i % 7).to_le_bytes());
+    }
+    let r = ok(&bytes);
+    assert_eq!(r.cloud.positions[0], [0x0d30 as f32, 0x0d31 as f32, 0x0d32 as f32]);
+}

@@ -461,7 +461,14 @@ fn bench(args: &[String]) -> Result<(), Failure> {
     while let Some(a) = it.next() {
         match a.as_str() {
             "--sizes" => sizes = list(&value(&mut it, a)?, a)?,
-            "--ms" => ms = list(&value(&mut it, a)?, a)?,
+            "--ms" => {
+                ms = list(&value(&mut it, a)?, a)?;
+                // Each m within the settings table's range, as --m is.
+                let def = nkrr::settings::by_key("m").expect("the table has m");
+                for m in &ms {
+                    def.parse(&m.to_string()).map_err(|e| usage(&format!("--ms: {e}")))?;
+                }
+            }
             s if reconstruct_option(s, &mut it, &mut settings)? => {}
             s => return Err(usage(&format!("unknown bench option '{s}'"))),
         }
@@ -487,6 +494,7 @@ fn bench(args: &[String]) -> Result<(), Failure> {
     for &n in &sizes {
         let cloud = synthetic_torus(n, 0.005, n as u64);
         for &m in &ms {
+            // m 0 is the network's row (no regression), not a setting.
             let s = Settings { m: m.max(1), ..settings.clone() };
             let t0 = nkrr::gpu::now();
             let rec = pollster::block_on(engine.reconstruct(&cloud, &s, &mut |_| true))

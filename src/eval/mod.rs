@@ -386,8 +386,14 @@ pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String>
         "nkrr-no-across" => Settings { across: None, ..nkrr },
         "nkrr-keep-outliers" => Settings { outliers: None, min_support: None, ..nkrr },
         "network-keep-outliers" => Settings { method: Method::Network, outliers: None, min_support: None, ..base.clone() },
-        s => match s.strip_prefix("nkrr-m").and_then(|m| m.parse::<usize>().ok()).filter(|&m| m > 0) {
-            Some(m) => Settings { m, ..nkrr },
+        // m through the settings table, so its range holds here as in the CLI and the page.
+        s => match s.strip_prefix("nkrr-m").filter(|m| m.starts_with(|c: char| c.is_ascii_digit())) {
+            Some(m) => {
+                let mut out = nkrr;
+                let def = crate::settings::by_key("m").expect("the table has m");
+                def.parse(m).and_then(|v| def.set(&mut out, v)).map_err(|e| format!("method '{s}': {e}"))?;
+                out
+            }
             None => {
                 return Err(format!(
                     "unknown method '{s}' (expected network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-paper, nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-position, nkrr-position-prior-mean, nkrr-no-across, nkrr-keep-outliers, nkrr-fit-noise or nkrr-m<N>)"

@@ -75,7 +75,7 @@ fn check_layout(b: &[u8]) -> Result<Layout, String> {
             offset_to_points - header_size
         ));
     }
-    // Each VLR (a 54-byte header, then as many bytes as it declares at its byte 52) must end
+    // Each VLR (a 54-byte header, then as many bytes as it declares at its byte 20) must end
     // inside the file: one that runs past it failed in the `las` crate as "header: failed to
     // fill whole buffer", which named neither the record nor the header as the cause.
     let mut at = header_size;
@@ -85,23 +85,22 @@ fn check_layout(b: &[u8]) -> Result<Layout, String> {
                 "variable-length record {i} of {vlrs} (declared at byte 100) would start at byte {at}, but its 54-byte header runs past the file's end at byte {file_len}: the header is damaged"
             ));
         }
-        let len = u16_at(b, at as usize + 52);
+        let len = u16_at(b, at as usize + 20);
         if at + 54 + len > file_len {
             let user = String::from_utf8_lossy(&b[at as usize + 2..at as usize + 18]).trim_end_matches('\0').to_string();
             let id = u16_at(b, at as usize + 18);
             return Err(format!(
                 "variable-length record {i} (at byte {at}, user '{user}', record {id}) declares {len} bytes of data (at byte {}), running past the file's end at byte {file_len}: the record's length or the file is damaged",
-                at + 52
+                at + 20
             ));
         }
         at += 54 + len;
     }
-    let count = if version.1 >= 4 && header_size >= 375 && b.len() >= 255 {
-        let wide = u64_at(b, 247);
-        if wide == 0 { legacy_count } else { wide }
-    } else {
-        legacy_count
-    };
+    // The count the `las` crate will use, by its rule (the LAS 1.4 specification's): the
+    // legacy 32-bit field when it is not zero, else the 64-bit one, read for every 1.4 header
+    // whatever its declared size. Checking another count than the crate's let a damaged header
+    // through to `count × record length`, which overflowed inside the crate (the fuzzer found it).
+    let count = if version.1 >= 4 && legacy_count == 0 && b.len() >= 255 { u64_at(b, 247) } else { legacy_count };
     let compressed = format_byte & 0x80 != 0 || format_byte & 0x40 != 0;
     let format = format_byte & 0x3f;
     let after = file_len - offset_to_points;

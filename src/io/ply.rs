@@ -760,7 +760,7 @@ fn find_scalar(e: &PlyElement, names: &[&str]) -> Option<usize> {
 /// are converted.
 pub fn read_ply(bytes: &[u8]) -> Result<PlyCloud, PlyError> {
     let header = read_ply_header(bytes)?;
-    if header.format != PlyFormat::Ascii && looks_like_text_body(&bytes[header.body_offset..]) {
+    if header.format != PlyFormat::Ascii && looks_like_text_body(&header, &bytes[header.body_offset..]) {
         return Err(PlyError::TextBody { format: header.format });
     }
     check_capacity(&header, bytes.len())?;
@@ -1203,16 +1203,23 @@ fn read_body<S: Source>(header: &PlyHeader, src: &mut S) -> Result<(PointCloud, 
     Ok((cloud, dropped, src.leftover()))
 }
 
-/// Whether a body declared binary is in fact lines of text numbers (a wrong format line):
-/// its first bytes (at least 16) are only digits, signs, points, exponents, spaces and line
-/// breaks, with at least one line break. Binary values almost never are: every byte of 16 or
-/// more would have to fall among 17 of 256.
-fn looks_like_text_body(body: &[u8]) -> bool {
+/// Whether a body declared binary is in fact lines of text numbers (a wrong format line): its
+/// first bytes are only digits, signs, points, exponents, spaces and line breaks, and its first
+/// line holds as many numbers as the first element has properties (at least, when it has
+/// lists). Binary values rarely pass the first test over a short body (`ushort` values
+/// 0x0d30-0x0d36 are the bytes '0'-'6' and CR), and almost never both.
+fn looks_like_text_body(header: &PlyHeader, body: &[u8]) -> bool {
     let head = &body[..body.len().min(512)];
-    head.len() >= 16
-        && head.iter().all(|b| b"0123456789+-.eE \t\r\n".contains(b))
-        && head.iter().any(|&b| b == b'\n' || b == b'\r')
-        && head.iter().any(u8::is_ascii_digit)
+    if head.len() < 16 || !head.iter().all(|b| b"0123456789+-.eE \t\r\n".contains(b)) {
+        return false;
+    }
+    let Some(end) = head.iter().position(|&b| b == b'\n' || b == b'\r') else { return false };
+    let Ok(line) = std::str::from_utf8(&head[..end]) else { return false };
+    let values: Vec<&str> = line.split_ascii_whitespace().collect();
+    let Some(first) = header.elements.iter().find(|e| e.count > 0) else { return false };
+    let lists = first.properties.iter().any(|p| matches!(p.kind, PropertyKind::List { .. }));
+    let fits = if lists { values.len() >= first.properties.len() } else { values.len() == first.properties.len() };
+    fits && values.iter().all(|v| v.parse::<f64>().is_ok())
 }
 
 fn skip_element<S: Source>(e: &PlyElement, src: &mut S) -> Result<(), PlyError> {

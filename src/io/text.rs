@@ -505,8 +505,11 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     out.reserve((text.len() / 6).min(1 << 22));
     let mut declared = 0u64;
     let mut notes = Vec::new();
-    // The data line before this one, to judge a last line that has no line ending.
-    let mut previous: Option<&str> = None;
+    // The decimals of the last value of every data line so far, while they agree (a writer with a
+    // fixed format, "%.6f"), to judge a last line that has no line ending; None once they differ
+    // (shortest round-trip writers give each value its own count).
+    let mut decimals: Option<Option<usize>> = None;
+    let mut data_lines = 0usize;
     let mut lines = Lines::new(text);
     while let Some((number, line)) = lines.next() {
         if number < first_data_line {
@@ -522,10 +525,10 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
             let cut = match kind {
                 Line::Values(c) if c < columns => Some(format!("it has {c} of the {columns} values of a point")),
                 Line::Words | Line::BadDecimal(_) => Some("it does not end in a number".to_string()),
-                Line::Values(c) if c == columns => match (last_decimals(line, decimal_comma), previous.and_then(|p| last_decimals(p, decimal_comma))) {
-                    (Some(d), Some(before)) if d < before => {
-                        Some(format!("its last value has {d} decimals where the line before has {before}"))
-                    }
+                Line::Values(c) if c == columns => match (last_decimals(line, decimal_comma), decimals) {
+                    (Some(d), Some(Some(fixed))) if d < fixed && data_lines >= 2 => Some(format!(
+                        "its last value has {d} decimals where every line before has {fixed}"
+                    )),
                     _ => None,
                 },
                 _ => None,
@@ -546,7 +549,13 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
             }
         }
         if matches!(kind, Line::Values(_)) {
-            previous = Some(line);
+            let d = last_decimals(line, decimal_comma);
+            decimals = match decimals {
+                None => Some(d),
+                Some(Some(before)) if d == Some(before) => Some(d),
+                _ => Some(None),
+            };
+            data_lines += 1;
         }
         match kind {
             Line::Blank | Line::Comment(_) => {}
@@ -796,7 +805,11 @@ mod tests {
         let f = read(&format!("{lines}2.100000 2.200000 2.300000"));
         assert_eq!(f.cloud.len(), 3);
         assert!(f.warnings().iter().any(|w| w.contains("last line (3") && w.contains("no line ending")), "{:?}", f.warnings());
-        // A number cut short (fewer decimals than the line before), or a value missing: left out.
+        // Shortest round-trip values (decimals vary from line to line): read, and named.
+        let f = read("0.1 0.25 0.3\n1.125 1.5 1.0625\n2.1 2.2 2.3");
+        assert_eq!(f.cloud.len(), 3);
+        assert!(f.warnings().iter().any(|w| w.contains("no line ending") && w.contains("read as it is")), "{:?}", f.warnings());
+        // A number cut short (fewer decimals than every line before), or a value missing: left out.
         for cut in ["2.100000 2.200000 2.3", "2.100000 2.200000", "2.100000 2.200000 2.3e"] {
             let f = read(&format!("{lines}{cut}"));
             assert_eq!(f.cloud.len(), 2, "{cut}");

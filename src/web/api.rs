@@ -133,8 +133,11 @@ pub fn mesh_file(
 /// (median of `reps`), in this build: what a real GPU leaves to the worker's thread at every
 /// step (see `krr::mm::algebra_step_seconds`). For the benchmark in tests/browser.
 #[wasm_bindgen]
-pub fn tuning_step_ms(m: usize, reps: usize) -> f64 {
-    1e3 * crate::krr::mm::algebra_step_seconds(m.clamp(1, 4000), 32, reps)
+pub fn tuning_step_ms(m: usize, reps: usize) -> Result<f64, JsError> {
+    // m within the settings table's range, refused outside it (not quietly clamped).
+    let def = crate::settings::by_key("m").expect("the table has m");
+    def.parse(&m.to_string()).map_err(|e| JsError::new(&format!("tuning_step_ms: {e}")))?;
+    Ok(1e3 * crate::krr::mm::algebra_step_seconds(m, 32, reps))
 }
 
 /// The triangles of a mesh (given as `reconstruct`'s arrays) that lie within `factor` × the
