@@ -223,12 +223,18 @@ impl Normalization {
     /// Fewest points accepted for reconstruction.
     pub const MIN_POINTS: usize = 4;
 
+    /// Whether `count` points are enough for any surface ([`Self::MIN_POINTS`]).
+    pub fn enough_points(count: usize) -> Result<(), CloudError> {
+        if count < Self::MIN_POINTS {
+            return Err(CloudError::TooFewPoints { count, needed: Self::MIN_POINTS });
+        }
+        Ok(())
+    }
+
     /// The normalisation of `cloud`, or why it has none: too few points, all at one place, or
     /// all on one line or plane in any orientation (see [`principal_spread`]).
     pub fn of(cloud: &PointCloud) -> Result<Normalization, CloudError> {
-        if cloud.len() < Self::MIN_POINTS {
-            return Err(CloudError::TooFewPoints { count: cloud.len(), needed: Self::MIN_POINTS });
-        }
+        Self::enough_points(cloud.len())?;
         let b = cloud.bounds().ok_or(CloudError::TooFewPoints { count: 0, needed: Self::MIN_POINTS })?;
         let center = [0, 1, 2].map(|a| 0.5 * (b.min[a] as f64 + b.max[a] as f64));
         let scale = (0..3).map(|a| b.max[a] as f64 - b.min[a] as f64).fold(0.0, f64::max);

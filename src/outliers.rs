@@ -35,6 +35,19 @@ pub fn drop_stray(points: Vec<[f32; 3]>, ratio: f32) -> (Vec<[f32; 3]>, usize) {
     (points.into_iter().zip(keep).filter(|(_, k)| *k).map(|(p, _)| p).collect(), dropped)
 }
 
+/// `points` without the stray ones, and what to tell the user: (text, whether it is a warning)
+/// — a warning when the filter took more than [`LARGE_SHARE`] of them, else a notice of how many
+/// went (nothing when none did).
+pub fn filter(points: Vec<[f32; 3]>, ratio: f32) -> (Vec<[f32; 3]>, Option<(String, bool)>) {
+    let total = points.len();
+    let (kept, dropped) = drop_stray(points, ratio);
+    let said = match warning(dropped, total, ratio) {
+        Some(w) => Some((w, true)),
+        None => notice(dropped, ratio).map(|n| (n, false)),
+    };
+    (kept, said)
+}
+
 /// A share of the points beyond which the filter is more likely wrong than the cloud: stray
 /// points are a few percent of a real scan (10 % in the harder eval clouds), and `--outliers 1`
 /// dropped half of a clean one.

@@ -100,8 +100,7 @@ pub struct Reconstruction {
     /// What the simplification did, when [`Settings::triangles`] or [`Settings::max_error`] asked for it.
     pub simplify: Option<crate::mesh::simplify::SimplifyReport>,
     pub notices: Vec<String>,
-    /// What the user must not miss: a setting that did not apply, a filter that took a large
-    /// share of the points (the CLI prints them as warnings, the page first and marked).
+    /// What the user must not miss (a filter that took a large share of the points).
     pub warnings: Vec<String>,
     pub extract: ExtractStats,
     /// What the test-time tuning did (nkrr only).
@@ -157,11 +156,8 @@ impl Engine {
         let mut timings = Vec::new();
         let mut notices = Vec::new();
         let mut warnings = Vec::new();
-        // Too few points are refused first; the shape checks (a line, a plane) wait for the
-        // stray-point filter below: one stray point far away made a sphere "a line".
-        if cloud.len() < Normalization::MIN_POINTS {
-            return Err(PipelineError::Cloud(CloudError::TooFewPoints { count: cloud.len(), needed: Normalization::MIN_POINTS }));
-        }
+        // Too few points first; the shape checks wait for the stray-point filter (a far one made a sphere "a line").
+        Normalization::enough_points(cloud.len()).map_err(PipelineError::Cloud)?;
         // The preflight's plan decides how many points and inducing points fit this adapter
         // (and, in the browser, the host budget); its actions become notices. The settings stay
         // what the user asked for.
@@ -179,13 +175,9 @@ impl Engine {
         // crate::outliers); the filter scores the points the network will see.
         if let Some(ratio) = settings.outliers {
             let t = now();
-            let dropped;
-            let total = seen.len();
-            (seen, dropped) = crate::outliers::drop_stray(seen, ratio);
-            match crate::outliers::warning(dropped, total, ratio) {
-                Some(w) => warnings.push(w),
-                None => notices.extend(crate::outliers::notice(dropped, ratio)),
-            }
+            let said;
+            (seen, said) = crate::outliers::filter(seen, ratio);
+            said.into_iter().for_each(|(text, warning)| if warning { warnings.push(text) } else { notices.push(text) });
             timings.push(("outliers", now() - t));
         }
         let seen = PointCloud { positions: seen, origin: cloud.origin, normals: None, colors: None };
@@ -212,9 +204,7 @@ impl Engine {
             let mut report = |step: usize, loss: f64| progress(&Stage::Tuning { step, of: settings.steps, loss });
             // The plan's m, for the points the stray-point filter kept (fewer points, fewer pairs).
             let (m, fewer) = crate::plan::inducing_points(settings, plan.m, points.len());
-            if m < plan.m {
-                notices.extend(fewer.map(|d| format!("after the stray-point filter, nkrr will {d}")));
-            }
+            notices.extend(fewer.filter(|_| m < plan.m).map(|d| format!("after the stray-point filter, nkrr will {d}")));
             let (fit, summary) = field::fit(&self.gpu, &pairs, settings, m, &mut report).await?;
             timings.push(("tuning", now() - t));
             tuning = Some(summary);
@@ -302,14 +292,7 @@ impl Engine {
         }
         // Units last: every stage above works in the cloud's own coordinates (the network's
         // normalisation makes the scale irrelevant to it), and a similarity keeps normals.
-        let mut origin = cloud.origin;
-        if let Some(u) = settings.units.filter(|u| u.metres() != 1.0) {
-            let s = u.metres();
-            for p in &mut mesh.positions {
-                *p = p.map(|c| (c as f64 * s) as f32);
-            }
-            origin = origin.map(|c| c * s);
-        }
+        let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
         (progress.borrow_mut())(&Stage::Done);
         Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings })
     }

@@ -103,6 +103,16 @@ pub fn guess(longest: f64, stated: Option<Units>) -> UnitsGuess {
     }
 }
 
+/// `positions` (relative to `origin`) in metres when `units` are given: a similarity, so
+/// normals keep; returns the origin in metres too.
+pub fn to_metres(units: Option<Units>, positions: &mut [[f32; 3]], origin: [f64; 3]) -> [f64; 3] {
+    let Some(s) = units.map(Units::metres).filter(|&s| s != 1.0) else { return origin };
+    for p in positions {
+        *p = p.map(|c| (c as f64 * s) as f32);
+    }
+    origin.map(|c| c * s)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -278,3 +278,34 @@ fn a_damaged_e57_packet_is_named_as_damage() {
     let e = read_err(&bad, "page.e57");
     assert!(e.contains("checksum does not match") && !e.contains("cut short"), "{e}");
 }
+
+/// An E57 whose XML declares more points for a scan than its data holds is refused: the `e57`
+/// crate went on into the next scan's data and invented the points without a word.
+#[test]
+fn an_e57_count_beyond_its_data_is_refused() {
+    let full = std::fs::read(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/formats/spot-two-scans.e57")).unwrap();
+    let before = read_ok(&full, "two.e57").cloud.len();
+    // The XML (logical bytes at the header's offset, checksums in between) names each scan's
+    // recordCount; raise the first by one and reseal the pages it spans.
+    let xml_at = u64::from_le_bytes(full[24..32].try_into().unwrap()) as usize;
+    let logical: Vec<usize> = (xml_at..full.len()).filter(|i| i % 1024 < 1020).collect();
+    let text: Vec<u8> = logical.iter().map(|&i| full[i]).collect();
+    let key = b"recordCount=\"";
+    let at = text.windows(key.len()).position(|w| w == key).unwrap() + key.len();
+    let end = at + text[at..].iter().position(|&c| c == b'"').unwrap();
+    let n: u64 = std::str::from_utf8(&text[at..end]).unwrap().parse().unwrap();
+    let new = (n + 1).to_string();
+    assert_eq!(new.len(), end - at, "same width, so nothing moves");
+    let mut bad = full.clone();
+    for (k, c) in new.bytes().enumerate() {
+        bad[logical[at + k]] = c;
+    }
+    for page in [logical[at] / 1024, logical[end - 1] / 1024] {
+        let p = page * 1024;
+        let crc = crc32c(&bad[p..p + 1020]);
+        bad[p + 1020..p + 1024].copy_from_slice(&crc.to_be_bytes());
+    }
+    let e = read_err(&bad, "more.e57");
+    assert!(e.contains(&format!("declares {} points", n + 1)) && e.contains(&format!("holds at most {n}")), "{e}");
+    assert!(before as u64 > n, "{before} points in both scans, {n} in the first");
+}

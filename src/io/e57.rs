@@ -37,6 +37,81 @@ fn check_header(b: &[u8]) -> Result<(), String> {
     Ok(())
 }
 
+/// E57 pages: 1020 bytes of data, then a 4-byte checksum.
+const PAGE: u64 = 1024;
+const PAGE_DATA: u64 = 1020;
+
+/// The byte of the file at logical offset `logical` (checksums skipped), if the file has it.
+fn logical_byte(b: &[u8], logical: u64) -> Option<u8> {
+    b.get(usize::try_from(logical / PAGE_DATA * PAGE + logical % PAGE_DATA).ok()?).copied()
+}
+
+/// `N` logical bytes from `logical`, if the file has them.
+fn logical_bytes<const N: usize>(b: &[u8], logical: u64) -> Option<[u8; N]> {
+    let mut out = [0u8; N];
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = logical_byte(b, logical + i as u64)?;
+    }
+    Some(out)
+}
+
+/// Bits a record of `t` takes in its byte stream (the E57 standard's, as the `e57` crate packs).
+fn bits(t: &::e57::RecordDataType) -> u64 {
+    let range = |min: i64, max: i64| {
+        let r = max as i128 - min as i128;
+        if r > 0 { r.ilog2() as u64 + 1 } else { 0 }
+    };
+    match *t {
+        ::e57::RecordDataType::Single { .. } => 32,
+        ::e57::RecordDataType::Double { .. } => 64,
+        ::e57::RecordDataType::ScaledInteger { min, max, .. } | ::e57::RecordDataType::Integer { min, max } => range(min, max),
+    }
+}
+
+/// The most records the data packets of `scan`'s section can hold (None when it cannot be
+/// told: a field of 0 bits, or a section this walk cannot follow, which the reader then
+/// judges itself). The `e57` crate reads packets until it has the records the XML declares,
+/// past the section's end if need be: a record count raised in the XML then read points from
+/// the next scan's data without a word (the fuzzer found it). A stream is padded to whole
+/// bytes, so fields of under 8 bits leave room for up to 7 records more than were written:
+/// those no count can tell from real ones.
+fn records_held(b: &[u8], scan: &::e57::PointCloud) -> Option<u64> {
+    let physical = |p: u64| (p % PAGE < PAGE_DATA).then(|| p / PAGE * PAGE_DATA + p % PAGE);
+    let start = physical(scan.file_offset)?;
+    let header = logical_bytes::<32>(b, start)?;
+    let section_length = u64::from_le_bytes(header[8..16].try_into().ok()?);
+    let end = start.checked_add(section_length)?;
+    let mut at = physical(u64::from_le_bytes(header[16..24].try_into().ok()?))?;
+    let mut stream_bytes = vec![0u64; scan.prototype.len()];
+    while at + 4 <= end {
+        let [kind, _flags, lo, hi] = logical_bytes::<4>(b, at)?;
+        let length = u16::from_le_bytes([lo, hi]) as u64 + 1;
+        if kind == 1 {
+            let [c0, c1] = logical_bytes::<2>(b, at + 4)?;
+            if u16::from_le_bytes([c0, c1]) as usize != stream_bytes.len() {
+                return None;
+            }
+            for (i, total) in stream_bytes.iter_mut().enumerate() {
+                let [s0, s1] = logical_bytes::<2>(b, at + 6 + 2 * i as u64)?;
+                *total += u16::from_le_bytes([s0, s1]) as u64;
+            }
+        } else if kind > 2 {
+            return None;
+        }
+        at += length;
+    }
+    scan.prototype
+        .iter()
+        .zip(&stream_bytes)
+        .map(|(r, &n)| match bits(&r.data_type) {
+            0 => None,
+            k => Some(n * 8 / k),
+        })
+        .collect::<Option<Vec<u64>>>()?
+        .into_iter()
+        .min()
+}
+
 /// A failure while decoding a scan's points, in the user's terms: a damaged data packet made
 /// the `e57` crate report "Internal error: ... logic error" (which reads as a bug in the reader)
 /// or "failed to fill whole buffer" (which reads as a cut file). `whole`: the file is as long
@@ -92,6 +167,12 @@ pub fn read_e57(bytes: &[u8]) -> Result<ScanFile, String> {
         posed += usize::from(scan.transform.is_some());
         let name = scan.name.clone().unwrap_or_else(|| format!("scan {i}"));
         comments.push(format!("{name}: {} points{}", scan.records, if scan.transform.is_some() { ", posed" } else { "" }));
+        if let Some(held) = records_held(bytes, scan).filter(|&held| held < scan.records) {
+            return Err(format!(
+                "{name} declares {} points, but the data of its section holds at most {held}: the file's XML or its data is damaged",
+                scan.records
+            ));
+        }
         let mut points = reader.pointcloud_simple(scan).map_err(|e| point_error(&name, 0, e, whole))?;
         points.apply_pose(true);
         points.spherical_to_cartesian(true);
