@@ -85,3 +85,24 @@ fn defaults_come_from_the_table() {
     assert_eq!((pairs.off_flag, pairs.check(Value::Off)), (Some("--all-pairs"), Ok(Value::Off)));
     assert_eq!(settings::by_key("labelClip").unwrap().default, Value::Num(4.0));
 }
+
+/// The eval variants are one list: each resolves, the error names every one, and `nkrr-m<N>`
+/// goes through the settings table's range (it once took any N).
+#[test]
+fn eval_variants_are_one_list_and_m_keeps_its_range() {
+    use nkrr::eval::{variant_names, variant_settings, VARIANTS};
+    let base = nkrr::settings::Settings::default();
+    for (name, _) in VARIANTS {
+        assert!(variant_settings(name, &base).is_ok(), "{name}");
+    }
+    let e = variant_settings("nkrr-bogus", &base).unwrap_err();
+    for (name, _) in VARIANTS {
+        assert!(e.contains(name), "{name}: {e}");
+    }
+    assert!(variant_names().ends_with("nkrr-m<N> (e.g. nkrr-m1000)"));
+    assert_eq!(variant_settings("nkrr-m1000", &base).unwrap().m, 1000);
+    for bad in ["nkrr-m0", "nkrr-m5001", "nkrr-m2.5"] {
+        let e = variant_settings(bad, &base).unwrap_err();
+        assert!(e.contains("from 1 to 5000"), "{bad}: {e}");
+    }
+}

@@ -381,7 +381,7 @@ function wireInput() {
   });
   canvas.addEventListener('wheel', (e) => { e.preventDefault(); viewer?.zoom(e.deltaY); requestRender(); }, { passive: false });
   canvas.addEventListener('dblclick', () => { viewer?.fit(); requestRender(); });
-  $('fit').addEventListener('click', () => { viewer?.fit(); requestRender(); });
+  $('fit-view').addEventListener('click', () => { viewer?.fit(); requestRender(); });
   addEventListener('keydown', (e) => {
     if (e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement) return;
     if (e.key === 'f' || e.key === 'F') { viewer?.fit(); requestRender(); }

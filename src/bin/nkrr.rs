@@ -29,11 +29,8 @@ USAGE:
               [reconstruct options except -o and --method]
                             reconstruct every DIR/NAME-SIZE.ply with each method, score it
                             against DIR/NAME.obj; writes PREFIX.md and PREFIX.json  [eval]
-        methods: network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune,
-                 nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-m<N> (e.g. nkrr-m1000),
-                 nkrr-paper (the paper's method: its tuning, pairs, no fit, no filters),
-                 nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-keep-outliers,
-                 nkrr-position, nkrr-position-prior-mean, nkrr-no-across, nkrr-fit-noise
+        methods: {METHODS}
+                 (nkrr-paper: the paper's method: its tuning, pairs, no fit, no filters)
         --keep-meshes              also write PREFIX-NAME-SIZE-METHOD.glb
     nkrr bench [--sizes 3000,10000,50000] [--ms 500,1000] [reconstruct options]
                             per-stage times on a synthetic noisy torus (adapter printed)
@@ -43,7 +40,24 @@ USAGE:
 
 /// The usage text, with the reconstruction options from the settings table.
 fn usage_text() -> String {
-    USAGE.replace("{OPTIONS}", &nkrr::settings::usage())
+    USAGE.replace("{OPTIONS}", &nkrr::settings::usage()).replace("{METHODS}", &wrapped(&nkrr::eval::variant_names(), 17, 96))
+}
+
+/// `text` broken at ", " into lines of at most `width` characters, the later ones indented by
+/// `indent` spaces.
+fn wrapped(text: &str, indent: usize, width: usize) -> String {
+    let mut lines = vec![String::new()];
+    for word in text.split(", ") {
+        let line = lines.last_mut().expect("one line at least");
+        if !line.is_empty() && indent + line.len() + word.len() + 2 > width {
+            line.push(',');
+            lines.push(String::new());
+        } else if !line.is_empty() {
+            line.push_str(", ");
+        }
+        lines.last_mut().expect("one line at least").push_str(word);
+    }
+    lines.join(&format!("\n{}", " ".repeat(indent)))
 }
 
 /// `s` with control characters shown escaped (`\x1b`, `\u{9b}`), except newline and tab:

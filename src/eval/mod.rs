@@ -342,63 +342,78 @@ fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> 
     })
 }
 
-/// Reconstruction variants the evaluation compares: the method and the paper's ablations, as
-/// changes to `base` (which carries everything else the user set, e.g. the resolution).
-///
-/// `network`, `nkrr`, `nkrr-no-tune` (no test-time tuning), `nkrr-no-theta` (length-scales
-/// fixed), `nkrr-no-z` (inducing points fixed), `nkrr-euclidean` (KRR on Fourier-encoded
-/// coordinates instead of the network's features), `nkrr-m<N>` (N inducing points, e.g.
-/// `nkrr-m1000`); `nkrr-no-fit` and `network-no-fit` leave out the last fit of the mesh to the
-/// points (the paper's output: the field's level set as it is).
+/// A variant's change to the base settings (which carry everything else the user set).
+type Variant = fn(Settings) -> Settings;
+
+fn nkrr(s: Settings) -> Settings {
+    Settings { method: Method::Nkrr, ..s }
+}
+
+fn network(s: Settings) -> Settings {
+    Settings { method: Method::Network, ..s }
+}
+
+/// Reconstruction variants the evaluation compares, by name: the methods and the paper's
+/// ablations as changes to the base settings. The one list: [`variant_settings`] looks names up
+/// in it, and its error and the CLI's usage ([`variant_names`]) list it. `nkrr-m<N>` (N inducing
+/// points, e.g. `nkrr-m1000`) comes on top.
+pub const VARIANTS: &[(&str, Variant)] = &[
+    ("network", network),
+    // The last fit of the mesh to the points left out: the field's level set as it is.
+    ("network-no-fit", |s| Settings { fit: false, ..network(s) }),
+    ("network-keep-outliers", |s| Settings { outliers: None, min_support: None, ..network(s) }),
+    ("nkrr", nkrr),
+    ("nkrr-no-fit", |s| Settings { fit: false, ..nkrr(s) }),
+    ("nkrr-fit-noise", |s| Settings { fit_noise: true, ..nkrr(s) }),
+    // No test-time tuning; length-scales fixed; inducing points fixed.
+    ("nkrr-no-tune", |s| Settings { steps: 0, ..nkrr(s) }),
+    ("nkrr-no-theta", |s| Settings { tune_theta: false, ..nkrr(s) }),
+    ("nkrr-no-z", |s| Settings { tune_z: false, ..nkrr(s) }),
+    // KRR on Fourier-encoded coordinates instead of the network's features.
+    ("nkrr-euclidean", |s| Settings { euclidean: true, ..nkrr(s) }),
+    // The paper's method as it stands in the paper: its tuning on every pair, its pairs, the
+    // level set as it is, every point and every piece kept.
+    ("nkrr-paper", |s| Settings {
+        tune_pairs: None,
+        lr: 0.1,
+        steps: 100,
+        select_by: crate::settings::SelectBy::Training,
+        prior_mean: crate::settings::PriorMean::Zero,
+        near_k: None,
+        extra_pairs: None,
+        across: None,
+        fit: false,
+        outliers: None,
+        min_support: None,
+        ..nkrr(s)
+    }),
+    ("nkrr-paper-pairs", |s| Settings { near_k: None, extra_pairs: None, ..nkrr(s) }),
+    ("nkrr-select-training", |s| Settings { select_by: crate::settings::SelectBy::Training, ..nkrr(s) }),
+    ("nkrr-prior-mean", |s| Settings { prior_mean: crate::settings::PriorMean::Network, ..nkrr(s) }),
+    ("nkrr-position", |s| Settings { position: true, ..nkrr(s) }),
+    ("nkrr-position-prior-mean", |s| Settings { position: true, prior_mean: crate::settings::PriorMean::Network, ..nkrr(s) }),
+    ("nkrr-no-across", |s| Settings { across: None, ..nkrr(s) }),
+    ("nkrr-keep-outliers", |s| Settings { outliers: None, min_support: None, ..nkrr(s) }),
+];
+
+/// The variants' names, comma-separated, with `nkrr-m<N>` last (for messages and the usage).
+pub fn variant_names() -> String {
+    VARIANTS.iter().map(|(n, _)| *n).chain(["nkrr-m<N> (e.g. nkrr-m1000)"]).collect::<Vec<_>>().join(", ")
+}
+
+/// The settings of variant `name` ([`VARIANTS`], or `nkrr-m<N>`) on top of `base`.
 pub fn variant_settings(name: &str, base: &Settings) -> Result<Settings, String> {
-    let nkrr = Settings { method: Method::Nkrr, ..base.clone() };
-    Ok(match name {
-        "network" => Settings { method: Method::Network, ..base.clone() },
-        "network-no-fit" => Settings { method: Method::Network, fit: false, ..base.clone() },
-        "nkrr" => nkrr,
-        "nkrr-no-fit" => Settings { fit: false, ..nkrr },
-        "nkrr-fit-noise" => Settings { fit_noise: true, ..nkrr },
-        "nkrr-no-tune" => Settings { steps: 0, ..nkrr },
-        "nkrr-no-theta" => Settings { tune_theta: false, ..nkrr },
-        "nkrr-no-z" => Settings { tune_z: false, ..nkrr },
-        "nkrr-euclidean" => Settings { euclidean: true, ..nkrr },
-        "nkrr-paper-pairs" => Settings { near_k: None, extra_pairs: None, ..nkrr },
-        // The paper's method as it stands in the paper: its tuning on every pair, its pairs,
-        // the level set as it is, every point and every piece kept.
-        "nkrr-paper" => Settings {
-            tune_pairs: None,
-            lr: 0.1,
-            steps: 100,
-            select_by: crate::settings::SelectBy::Training,
-            prior_mean: crate::settings::PriorMean::Zero,
-            near_k: None,
-            extra_pairs: None,
-            across: None,
-            fit: false,
-            outliers: None,
-            min_support: None,
-            ..nkrr
-        },
-        "nkrr-select-training" => Settings { select_by: crate::settings::SelectBy::Training, ..nkrr },
-        "nkrr-prior-mean" => Settings { prior_mean: crate::settings::PriorMean::Network, ..nkrr },
-        "nkrr-position" => Settings { position: true, ..nkrr },
-        "nkrr-position-prior-mean" => Settings { position: true, prior_mean: crate::settings::PriorMean::Network, ..nkrr },
-        "nkrr-no-across" => Settings { across: None, ..nkrr },
-        "nkrr-keep-outliers" => Settings { outliers: None, min_support: None, ..nkrr },
-        "network-keep-outliers" => Settings { method: Method::Network, outliers: None, min_support: None, ..base.clone() },
-        // m through the settings table, so its range holds here as in the CLI and the page.
-        s => match s.strip_prefix("nkrr-m").filter(|m| m.starts_with(|c: char| c.is_ascii_digit())) {
-            Some(m) => {
-                let mut out = nkrr;
-                let def = crate::settings::by_key("m").expect("the table has m");
-                def.parse(m).and_then(|v| def.set(&mut out, v)).map_err(|e| format!("method '{s}': {e}"))?;
-                out
-            }
-            None => {
-                return Err(format!(
-                    "unknown method '{s}' (expected network, network-no-fit, network-keep-outliers, nkrr, nkrr-no-fit, nkrr-no-tune, nkrr-no-theta, nkrr-no-z, nkrr-euclidean, nkrr-paper, nkrr-paper-pairs, nkrr-select-training, nkrr-prior-mean, nkrr-position, nkrr-position-prior-mean, nkrr-no-across, nkrr-keep-outliers, nkrr-fit-noise or nkrr-m<N>)"
-                ))
-            }
-        },
-    })
+    if let Some((_, change)) = VARIANTS.iter().find(|(n, _)| *n == name) {
+        return Ok(change(base.clone()));
+    }
+    // m through the settings table, so its range holds here as in the CLI and the page.
+    match name.strip_prefix("nkrr-m").filter(|m| m.starts_with(|c: char| c.is_ascii_digit())) {
+        Some(m) => {
+            let mut out = nkrr(base.clone());
+            let def = crate::settings::by_key("m").expect("the table has m");
+            def.parse(m).and_then(|v| def.set(&mut out, v)).map_err(|e| format!("method '{name}': {e}"))?;
+            Ok(out)
+        }
+        None => Err(format!("unknown method '{name}' (expected one of {})", variant_names())),
+    }
 }

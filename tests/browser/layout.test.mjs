@@ -31,6 +31,14 @@ for (const size of SIZES) {
       await page.waitForTimeout(300);
       const rect = (sel) => page.$eval(sel, (e) => { const r = e.getBoundingClientRect(); return { x: r.x, y: r.y, w: r.width, h: r.height }; });
       const inside = (r) => r.x >= 0 && r.y >= 0 && r.x + r.w <= size.width + 0.5 && r.y + r.h <= size.height + 0.5 && r.w > 0 && r.h > 0;
+      // Every element id once: the settings form's ids come from the table's keys, and the
+      // setting "fit" once took the id of the view's Fit button (it worked by wiring order only).
+      const dupes = await page.evaluate(() => {
+        const seen = new Map();
+        for (const e of document.querySelectorAll('[id]')) seen.set(e.id, (seen.get(e.id) ?? 0) + 1);
+        return [...seen].filter(([, n]) => n > 1).map(([id]) => id);
+      });
+      assert.deepEqual(dupes, [], `ids used more than once: ${dupes.join(', ')}`);
       const run = await rect('#run');
       assert.ok(inside(run), `Reconstruct is out of the window: ${JSON.stringify(run)}`);
       assert.equal(await page.isEnabled('#run'), true);
