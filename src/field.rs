@@ -314,7 +314,7 @@ pub fn tuning_rows(pairs: usize, settings: &Settings) -> usize {
 }
 
 /// Initialises (Z from rows of X, length-scales from the features' spread) and tunes the
-/// Nyström KRR with `m` inducing points on [`Settings::tune_pairs`] of the pairs (see
+/// Nyström KRR with the plan's `m` inducing points and backend (`regression`) on [`Settings::tune_pairs`] of the pairs (see
 /// [`split_rows`]), keeping the parameters with the lowest error on held-out pairs or, as the
 /// paper does, the lowest training error (method.md §4; [`Settings::select_by`]), then solves β
 /// on all pairs.
@@ -323,9 +323,10 @@ pub async fn fit(
     gpu: &Gpu,
     pairs: &TrainingPairs,
     settings: &Settings,
-    m: usize,
+    regression: crate::plan::Regression,
     progress: &mut dyn FnMut(usize, f64) -> bool,
 ) -> Result<(KrrField, TuningSummary), FitError> {
+    let crate::plan::Regression { m, on_gpu } = regression;
     debug_assert_eq!(settings.method, Method::Nkrr);
     let all = &pairs.problem;
     let held = if settings.select_by == SelectBy::HeldOut { HELD_OUT_MAX } else { 0 };
@@ -358,7 +359,6 @@ pub async fn fit(
         let g = krr::predict(&eval.beta, &params.z, &params.log_s, v.x())?;
         Ok(Some(g.iter().zip(v.y()).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / v.n() as f64))
     };
-    let on_gpu = settings.krr_backend.on_gpu(gpu.is_software());
     let report = |step: usize, eval: &krr::Eval| progress(step, eval.loss);
     let (result, predictor, evaluations, phases, beta) = if on_gpu {
         let objective = krr::GpuObjective::new(gpu, problem, ridge).await.map_err(KrrError::from)?;

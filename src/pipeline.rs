@@ -27,8 +27,9 @@ pub enum Stage {
     Pairs,
     /// Test-time tuning: `step` of at most `of`, with the objective's value.
     Tuning { step: usize, of: usize, loss: f64 },
-    /// Field evaluations made so far while meshing.
-    Meshing { evaluated: usize },
+    /// Field evaluations made so far while meshing, and about how many it will take
+    /// ([`crate::mesh::refine::MeshingSize::expected`]: a typical count, which a run may pass).
+    Meshing { evaluated: usize, expected: usize },
     Done,
 }
 
@@ -202,10 +203,10 @@ impl Engine {
             timings.push(("pairs", now() - t));
             let t = now();
             let mut report = |step: usize, loss: f64| progress(&Stage::Tuning { step, of: settings.steps, loss });
-            // The plan's m, for the points the stray-point filter kept (fewer points, fewer pairs).
-            let (m, fewer) = crate::plan::inducing_points(settings, plan.m, points.len());
-            notices.extend(fewer.filter(|_| m < plan.m).map(|d| format!("after the stray-point filter, nkrr will {d}")));
-            let (fit, summary) = field::fit(&self.gpu, &pairs, settings, m, &mut report).await?;
+            // The plan's regression, for the points the stray-point filter kept (fewer pairs).
+            let (regression, fewer) = plan.regression(settings, points.len());
+            notices.extend(fewer);
+            let (fit, summary) = field::fit(&self.gpu, &pairs, settings, regression, &mut report).await?;
             timings.push(("tuning", now() - t));
             tuning = Some(summary);
             Field::Krr(fit)
@@ -214,11 +215,7 @@ impl Engine {
         };
 
         let t = now();
-        let opts = ExtractOptions {
-            resolution: settings.resolution,
-            remove_small_components: settings.remove_small_components,
-            ..Default::default()
-        };
+        let opts = ExtractOptions { resolution: settings.resolution, remove_small_components: settings.remove_small_components, ..Default::default() };
         let evaluated = RefCell::new(0usize);
         let cancelled = RefCell::new(false);
         let progress = RefCell::new(progress);
@@ -226,12 +223,13 @@ impl Engine {
         // A refinement batch can hold a third of all evaluations: evaluated in chunks, with the
         // evaluations done so far told before each, the bar moves with the work instead of
         // jumping ahead of it.
+        let expected = crate::mesh::refine::MeshingSize::at(settings.resolution).expected as usize;
         let eval = |pts: Vec<[f32; 3]>| {
             let (evaluated, cancelled, progress) = (&evaluated, &cancelled, &progress);
             async move {
                 let mut values = Vec::with_capacity(pts.len());
                 for chunk in pts.chunks(MESHING_PROGRESS_CHUNK) {
-                    if !(progress.borrow_mut())(&Stage::Meshing { evaluated: *evaluated.borrow() }) {
+                    if !(progress.borrow_mut())(&Stage::Meshing { evaluated: *evaluated.borrow(), expected }) {
                         *cancelled.borrow_mut() = true;
                         return Err(FieldError("cancelled".into()));
                     }

@@ -462,10 +462,12 @@ fn meshing_progress_follows_the_evaluations() {
     let gpu = nkrr::gpu::Gpu::new_blocking().expect("a wgpu adapter (lavapipe will do)");
     let engine = pollster::block_on(Engine::new(gpu)).unwrap();
     let mut seen = Vec::new();
+    let mut expect = 0;
     let s = Settings { resolution: 96, ..settings() };
     let rec = pollster::block_on(engine.reconstruct(&cloud, &s, &mut |stage| {
-        if let nkrr::pipeline::Stage::Meshing { evaluated } = stage {
+        if let nkrr::pipeline::Stage::Meshing { evaluated, expected } = stage {
             seen.push(*evaluated);
+            expect = *expected;
         }
         true
     }))
@@ -475,6 +477,10 @@ fn meshing_progress_follows_the_evaluations() {
     assert!(seen.len() >= total / 32_768, "{} reports for {total} evaluations", seen.len());
     assert!(*seen.last().unwrap() < total, "the last report comes before the last chunk is evaluated");
     assert!(total - seen.last().unwrap() <= 32_768);
+    // The event carries the total it is measured against: the typical count at this resolution,
+    // within a factor of two of this closed surface's.
+    assert_eq!(expect, nkrr::mesh::refine::MeshingSize::at(96).expected as usize);
+    assert!(expect / 2 <= total && total <= 2 * expect, "{total} evaluations, about {expect} expected");
 }
 
 /// A sphere of 2,000 points with one stray point 1e7 away reconstructs: the shape checks run

@@ -165,8 +165,7 @@ function updatePreflight() {
 const reconstructor = new Reconstructor({ graceMs: CANCEL_GRACE_MS });
 
 // Shares of the overall bar per stage, by method. Meshing has no known end: its share fills as
-// field evaluations approach an estimate from the resolution (a closed surface needs ~18 per
-// finest-grid cell on its area, after a dense 33³ coarse grid).
+// field evaluations approach the typical count the event carries (MeshingSize::expected).
 const SHARES = {
   network: { features: [0, 0.15], meshing: [0.15, 0.98] },
   nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], meshing: [0.7, 0.98] },
@@ -191,7 +190,7 @@ function onProgress(p) {
   if (share) {
     let within = 0;
     if (p.stage === 'tuning') within = p.of ? p.step / p.of : 1;
-    if (p.stage === 'meshing') within = Math.min(1, p.evaluated / (33 ** 3 + 18 * opts.resolution ** 2));
+    if (p.stage === 'meshing') within = Math.min(1, p.evaluated / Math.max(1, p.expected));
     f = share[0] + (share[1] - share[0]) * within;
   } else if (p.stage === 'done') {
     f = 0.99;
@@ -436,10 +435,10 @@ async function boot() {
     fitCanvas();
     viewer = await nk.Viewer.create($('view'));
     $('adapter').textContent = `GPU: ${viewer.adapter}`;
-    // The adapter line reads "NAME (DeviceType, Backend, …)". nkrr (the default) tunes on the
-    // GPU; on a CPU adapter that would take minutes, so the network alone becomes the default
-    // there (a share link's own method still wins: it is applied below).
-    settings.softwareAdapter = /\(Cpu\b/.test(viewer.adapter);
+    // nkrr (the default) tunes on the GPU; on a software adapter that would take minutes, so the
+    // network alone becomes the default there (a share link's own method still wins: it is
+    // applied below). Software or not is the Rust side's one rule (Gpu::is_software).
+    settings.softwareAdapter = viewer.software;
     mark('software', settings.softwareAdapter);
     if (settings.softwareAdapter && settings.byKey.has('method')) settings.setFromText('method', 'network');
     settings.sync();

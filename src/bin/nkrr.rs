@@ -347,7 +347,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             Stage::Features => "computing features".to_string(),
             Stage::Pairs => "sampling and labelling training pairs".to_string(),
             Stage::Tuning { step, of, loss } => format!("tuning: step {step}/{of}, loss {loss:.6}"),
-            Stage::Meshing { evaluated } => format!("meshing: {evaluated} field evaluations"),
+            Stage::Meshing { evaluated, expected } => format!("meshing: {evaluated} field evaluations (of about {expected})"),
             Stage::Done => "done".to_string(),
         };
         if line != last {

@@ -116,6 +116,10 @@ pub struct MeshingSize {
     /// Active cells at the finest level.
     pub active: u64,
     pub triangles: u64,
+    /// Field evaluations a closed surface typically takes: the dense 33³ coarse grid, then about
+    /// 18 per finest-grid cell on its area. What progress is measured against (a typical count,
+    /// where [`MeshingSize::evaluated`] is a bound for memory): the one copy of this rule.
+    pub expected: u64,
 }
 
 impl MeshingSize {
@@ -128,6 +132,7 @@ impl MeshingSize {
             evaluated: ((r + 1).pow(3)).min(coarse + 55 * r * r),
             active,
             triangles: 2 * active,
+            expected: ((r + 1).pow(3)).min(coarse + 18 * r * r),
         }
     }
 

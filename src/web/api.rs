@@ -160,7 +160,7 @@ pub fn trim_indices(points: &[f32], positions: &[f32], indices: &[u32], factor: 
 /// `RangeError` that names the key and its range), and `name` (the glTF node's name).
 ///
 /// `on_progress(p)` is called at each stage with `{ stage: "features" | "pairs" | "tuning" |
-/// "meshing" | "done", step?, of?, loss?, evaluated? }`; returning `false` cancels, and the
+/// "meshing" | "done", step?, of?, loss?, evaluated?, expected? }`; returning `false` cancels, and the
 /// promise then rejects with an `Error` whose `name` is `"AbortError"`.
 ///
 /// Resolves to `{ glb: Uint8Array, positions: Float32Array, normals: Float32Array,
@@ -181,7 +181,9 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
             Stage::Features => ("features", vec![]),
             Stage::Pairs => ("pairs", vec![]),
             Stage::Tuning { step, of, loss } => ("tuning", vec![("step", *step as f64), ("of", *of as f64), ("loss", *loss)]),
-            Stage::Meshing { evaluated } => ("meshing", vec![("evaluated", *evaluated as f64)]),
+            Stage::Meshing { evaluated, expected } => {
+                ("meshing", vec![("evaluated", *evaluated as f64), ("expected", *expected as f64)])
+            }
             Stage::Done => ("done", vec![]),
         };
         set(&p, "stage", stage);
