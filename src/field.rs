@@ -303,6 +303,14 @@ pub fn split_rows(n: usize, inputs: usize, keep: Option<usize>, held: usize, see
     RowSplit { tune, held }
 }
 
+/// What the memory plan decided for the regression ([`crate::plan::MemoryPlan::regression`]),
+/// which [`fit`] takes as it is: the inducing points and where the objective runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Regression {
+    pub m: usize,
+    pub on_gpu: bool,
+}
+
 /// How many of `pairs` training pairs the tuning sees under `settings`: what [`split_rows`]
 /// leaves to tune on once the held-out pairs are set aside, at most [`Settings::tune_pairs`].
 /// The inducing points are drawn from these rows, so m cannot exceed it (see
@@ -323,10 +331,10 @@ pub async fn fit(
     gpu: &Gpu,
     pairs: &TrainingPairs,
     settings: &Settings,
-    regression: crate::plan::Regression,
+    regression: Regression,
     progress: &mut dyn FnMut(usize, f64) -> bool,
 ) -> Result<(KrrField, TuningSummary), FitError> {
-    let crate::plan::Regression { m, on_gpu } = regression;
+    let Regression { m, on_gpu } = regression;
     debug_assert_eq!(settings.method, Method::Nkrr);
     let all = &pairs.problem;
     let held = if settings.select_by == SelectBy::HeldOut { HELD_OUT_MAX } else { 0 };

@@ -85,14 +85,6 @@ pub struct MemoryPlan {
     pub decisions: Vec<String>,
 }
 
-/// What the plan decided for the regression, which [`crate::field::fit`] takes as it is: the
-/// inducing points and where the objective runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Regression {
-    pub m: usize,
-    pub on_gpu: bool,
-}
-
 /// The inducing points for a regression on `points` points: `m` (what the settings and the
 /// memory allow), at most the pairs the tuning sees ([`crate::field::tuning_rows`]), since the
 /// inducing points are drawn from those rows; and, when that is fewer than `settings.m`, the
@@ -132,13 +124,13 @@ impl MemoryPlan {
         self.stages.iter().map(|s| s.host_bytes).max().unwrap_or(0)
     }
 
-    /// The regression the fit runs ([`Regression`]) on the `points` the stray-point filter
+    /// The regression the fit runs ([`crate::field::Regression`]) on the `points` the stray-point filter
     /// kept, which may be fewer than planned: m is decided again by the same rule
     /// ([`inducing_points`]), and the sentence says so when that lowers it.
-    pub fn regression(&self, settings: &Settings, points: usize) -> (Regression, Option<String>) {
+    pub fn regression(&self, settings: &Settings, points: usize) -> (crate::field::Regression, Option<String>) {
         let (m, why) = inducing_points(settings, self.m, points);
         let fewer = why.filter(|_| m < self.m).map(|d| format!("after the stray-point filter, nkrr will {d}"));
-        (Regression { m, on_gpu: self.krr_on_gpu }, fewer)
+        (crate::field::Regression { m, on_gpu: self.krr_on_gpu }, fewer)
     }
 
     /// Human-readable lines: one per stage, the limits, then what will be done.

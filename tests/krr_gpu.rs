@@ -1,4 +1,4 @@
-//! The GPU Nyström KRR objective (`src/krr/gpu.rs`, `shaders/krr_*.wgsl`) against the f64
+//! The GPU Nyström KRR objective (`src/krr/gpu_objective.rs`, `gpu_predictor.rs`, `shaders/krr_*.wgsl`) against the f64
 //! reference (`src/krr/reference.rs`) on the same f32 inputs, on whatever adapter is present
 //! (lavapipe in CI).
 //!

@@ -26,6 +26,8 @@
 
 pub mod error;
 pub mod gpu;
+pub mod gpu_objective;
+pub mod gpu_predictor;
 pub mod init;
 pub mod kernel;
 pub mod linalg;
@@ -35,7 +37,9 @@ pub mod reference;
 pub mod tune;
 
 pub use error::KrrError;
-pub use gpu::{GpuObjective, GpuPredictor, KrrGpuError, PhaseTimings};
+pub use gpu::{KrrGpuError, PhaseTimings};
+pub use gpu_objective::GpuObjective;
+pub use gpu_predictor::GpuPredictor;
 pub use init::{init_length_scales, init_params, init_z, LengthScaleInit};
 pub use problem::{Eval, Grad, Objective, Params, Problem, Ridge, Weighting};
 pub use reference::{objective, objective_and_grad, predict, Reference};

@@ -1,0 +1,181 @@
+//! The Nyström predictor on the GPU: `g(q) = Σ_j β_j k(q, z_j)` at millions of queries
+//! (`shaders/krr_predict.wgsl`), in chunks of at most [`PREDICT_CHUNK`] queries and dispatches of
+//! [`PREDICT_SEGMENT`] inducing points (llvmpipe's loop limit: see [`super::gpu`]).
+
+use super::gpu::{check_d, params_f32, KrrGpuError, PREDICT_CHUNK, PREDICT_SEGMENT, TILE, WG};
+use super::error::KrrError;
+use super::problem::Params;
+use crate::gpu::{specialise, to_u32, Gpu, GpuError};
+
+const PREDICT_WGSL: &str = include_str!("../../shaders/krr_predict.wgsl");
+
+
+/// Binding indices of `shaders/krr_predict.wgsl`.
+mod predict_at {
+    pub const QUERIES: u32 = 0;
+    pub const Z: u32 = 1;
+    pub const INV_S: u32 = 2;
+    pub const BETA: u32 = 3;
+    pub const OUT: u32 = 4;
+    pub const DIMS: u32 = 5;
+}
+
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PredictDims {
+    q: u32,
+    j_begin: u32,
+    j_end: u32,
+    first: u32,
+    one: f32,
+    _pad: [u32; 3],
+}
+
+
+/// The Nyström predictor on the GPU for feature dimension `d`: `g(q) = Σ_j β_j k(q, z_j)` at
+/// millions of queries, in chunks of at most [`PREDICT_CHUNK`] (fewer where a binding cannot hold
+/// that many).
+#[derive(Clone)]
+pub struct GpuPredictor {
+    gpu: Gpu,
+    d: usize,
+    pipe: wgpu::ComputePipeline,
+    chunk: usize,
+}
+
+impl GpuPredictor {
+    /// Builds the kernel for feature dimension `d` (1 ..= [`MAX_D`](super::gpu::MAX_D)).
+    pub async fn new(gpu: &Gpu, d: usize) -> Result<GpuPredictor, KrrGpuError> {
+        check_d(d)?;
+        let scope = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let src = specialise(PREDICT_WGSL, &[("D", d)]);
+        let pipe = gpu.compute_pipelines("krr_predict", &src, &["predict"]).pop().expect("one pipeline");
+        if let Some(e) = scope.pop().await {
+            return Err(GpuError::Kernel(format!("building the predict kernel: {e}")).into());
+        }
+        let mut p = GpuPredictor { gpu: gpu.clone(), d, pipe, chunk: 0 };
+        p.set_chunk_queries(PREDICT_CHUNK);
+        Ok(p)
+    }
+
+    /// [`GpuPredictor::new`], blocking (native only).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn new_blocking(gpu: &Gpu, d: usize) -> Result<GpuPredictor, KrrGpuError> {
+        pollster::block_on(Self::new(gpu, d))
+    }
+
+    /// Feature dimension.
+    pub fn d(&self) -> usize {
+        self.d
+    }
+
+    /// Queries per submission.
+    pub fn chunk_queries(&self) -> usize {
+        self.chunk
+    }
+
+    /// Sets the queries per submission (clamped to 1 ..= what one binding and one 2-D dispatch
+    /// hold).
+    pub fn set_chunk_queries(&mut self, n: usize) {
+        let max = self.gpu.rows_per_binding((self.d * 4) as u64);
+        let dim = self.gpu.limits.max_compute_workgroups_per_dimension as usize;
+        let max_dispatch = dim.saturating_mul(dim).saturating_mul(WG as usize);
+        self.chunk = n.clamp(1, max.min(max_dispatch));
+    }
+
+    /// `g` at each row of `queries` (`q × d`, f32 as the network produces features), for
+    /// coefficients `beta` (m), inducing points `z` (`m × d`) and log length-scales (`d`).
+    /// The same checks as [`predict`](super::predict).
+    pub async fn predict(&self, beta: &[f64], z: &[f64], log_s: &[f64], queries: &[f32]) -> Result<Vec<f32>, KrrGpuError> {
+        let d = self.d;
+        let m = beta.len();
+        if log_s.len() != d {
+            return Err(KrrError::Shape(format!("predict: log_s has {} entries, expected d = {d}", log_s.len())).into());
+        }
+        if m == 0 {
+            return Err(KrrError::Empty("predict: m = 0".into()).into());
+        }
+        if z.len() != m * d {
+            return Err(KrrError::Shape(format!("predict: z has {} values, expected m·d = {}", z.len(), m * d)).into());
+        }
+        if !queries.len().is_multiple_of(d) {
+            return Err(KrrError::Shape(format!("predict: {} query values, not a multiple of d = {d}", queries.len())).into());
+        }
+        if beta.iter().chain(z).chain(log_s).any(|v| !v.is_finite()) {
+            return Err(KrrError::NonFinite("predict: beta, z or log_s".into()).into());
+        }
+        let nq = queries.len() / d;
+        if nq == 0 {
+            return Ok(Vec::new());
+        }
+        let (inv_s, z32) = params_f32(&Params { log_s: log_s.to_vec(), z: z.to_vec() })?;
+        let beta32: Vec<f32> = beta.iter().map(|&v| v as f32).collect();
+        let g = &self.gpu;
+        g.check_binding::<f32>("inducing points", m * d)?;
+        let z_buf = g.upload("krr predict z", &z32);
+        let s_buf = g.upload("krr predict 1/s", &inv_s);
+        let b_buf = g.upload("krr predict beta", &beta32);
+        let chunk = self.chunk.min(nq);
+        let q_buf = g.storage::<f32>("krr predict queries", chunk * d)?;
+        let o_buf = g.storage::<f32>("krr predict out", 2 * chunk)?;
+        let mut out = Vec::with_capacity(nq);
+        let scope = g.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let dims_of = |rows: usize, j_begin: usize| -> Result<PredictDims, GpuError> {
+            Ok(PredictDims {
+                q: to_u32("queries", rows)?,
+                j_begin: j_begin as u32,
+                j_end: to_u32("m", (j_begin + PREDICT_SEGMENT).min(m))?,
+                first: (j_begin == 0) as u32,
+                one: 1.0,
+                _pad: [0; 3],
+            })
+        };
+        // One uniform and bind group per segment of inducing points, built once per call and
+        // reused by every chunk; only a shorter last chunk rewrites the query count (queue
+        // writes are ordered after the earlier chunks' submissions).
+        let mut segments = Vec::new();
+        for j_begin in (0..m).step_by(PREDICT_SEGMENT) {
+            let dims = g.uniform("krr predict dims", &dims_of(chunk, j_begin)?);
+            let bg = g.bind_at(
+                &self.pipe,
+                &[
+                    (predict_at::QUERIES, &q_buf),
+                    (predict_at::Z, &z_buf),
+                    (predict_at::INV_S, &s_buf),
+                    (predict_at::BETA, &b_buf),
+                    (predict_at::OUT, &o_buf),
+                    (predict_at::DIMS, &dims),
+                ],
+            );
+            segments.push((j_begin, dims, bg));
+        }
+        for q0 in (0..nq).step_by(chunk) {
+            let rows = chunk.min(nq - q0);
+            g.queue.write_buffer(&q_buf, 0, bytemuck::cast_slice(&queries[q0 * d..(q0 + rows) * d]));
+            if rows != chunk {
+                for (j_begin, dims, _) in &segments {
+                    g.queue.write_buffer(dims, 0, bytemuck::bytes_of(&dims_of(rows, *j_begin)?));
+                }
+            }
+            let groups = g.dispatch_linear(rows as u64, TILE as u32)?;
+            let mut enc = g.device.create_command_encoder(&Default::default());
+            for (_, _, bg) in &segments {
+                g.encode_pass(&mut enc, &self.pipe, bg, groups);
+            }
+            g.queue.submit([enc.finish()]);
+            let hl = g.read::<f32>(&o_buf, 2 * rows).await?;
+            out.extend((0..rows).map(|i| (hl[i] as f64 + hl[rows + i] as f64) as f32));
+        }
+        if let Some(e) = scope.pop().await {
+            return Err(GpuError::Kernel(format!("predict: {e}")).into());
+        }
+        Ok(out)
+    }
+
+    /// [`GpuPredictor::predict`], blocking (native only).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn predict_blocking(&self, beta: &[f64], z: &[f64], log_s: &[f64], queries: &[f32]) -> Result<Vec<f32>, KrrGpuError> {
+        pollster::block_on(self.predict(beta, z, log_s, queries))
+    }
+}
