@@ -60,7 +60,7 @@ use super::gpu_predictor::GpuPredictor;
 use super::kernel;
 use super::linalg::{self, dot};
 use super::error::KrrError;
-use super::mm::{kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmParts};
+use super::mm::{assemble, kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmParts};
 use super::problem::{Eval, Grad, Params, Problem, Ridge};
 use crate::gpu::{now as now_s, specialise, to_u32, Gpu, GpuError};
 
@@ -579,17 +579,7 @@ impl GpuObjective {
         // ‖K~β − y~‖² is exact up to f64 rounding: no residual pass needed.
         let ab = linalg::matvec(&a, &beta, m, m);
         let data_fit = ((self.yy - 2.0 * dot(&b, &beta) + dot(&beta, &ab)) / nf).max(0.0);
-        let rkhs_norm2 = dot(&beta, &linalg::matvec(&kj, &beta, m, m));
-        let d_term = data_fit + lambda * rkhs_norm2;
-        let (alpha, c) = settings.weights(n);
-        let loss = alpha * t1 + c * t2 * d_term + 2.0 * d_term;
-        if !loss.is_finite() {
-            return Err(KrrError::NonFinite(format!(
-                "objective: loss = {loss} (T1 = {t1}, T2 = {t2}, D = {d_term})"
-            ))
-            .into());
-        }
-        let eval = Eval { loss, data_fit, rkhs_norm2, d_term, t1, t2, beta };
+        let (eval, alpha, c) = assemble(data_fit, (t1, t2), beta, &kj, &settings, (n, m))?;
         tm.cpu_algebra += now_s() - t;
 
         let grad = if want_grad {

@@ -53,6 +53,28 @@ pub(crate) fn mm_forward(a: &[f64], kj: &[f64], b: &[f64], nl: f64, n: f64, m: u
     Ok(MmForward { lk, beta, h_inv, kj_inv, t1, t2 })
 }
 
+/// The objective from its parts (`docs/method.md` §4), assembled here once for the f64
+/// reference and the GPU objective: `D = data_fit + λ βᵀK_jβ`, `loss = αT1 + cT2·D + 2D`, with
+/// `(α, c)` = [`Ridge::weights`](super::problem::Ridge::weights) for `n` points. Returns the
+/// evaluation and `(α, c)`, which the gradient needs; a loss that is not finite is an error.
+pub(crate) fn assemble(
+    data_fit: f64,
+    (t1, t2): (f64, f64),
+    beta: Vec<f64>,
+    kj: &[f64],
+    settings: &super::problem::Ridge,
+    (n, m): (usize, usize),
+) -> Result<(super::problem::Eval, f64, f64), KrrError> {
+    let rkhs_norm2 = linalg::dot(&beta, &linalg::matvec(kj, &beta, m, m));
+    let d_term = data_fit + settings.lambda * rkhs_norm2;
+    let (alpha, c) = settings.weights(n);
+    let loss = alpha * t1 + c * t2 * d_term + 2.0 * d_term;
+    if !loss.is_finite() {
+        return Err(KrrError::NonFinite(format!("objective: loss = {loss} (T1 = {t1}, T2 = {t2}, D = {d_term})")));
+    }
+    Ok((super::problem::Eval { loss, data_fit, rkhs_norm2, d_term, t1, t2, beta }, alpha, c))
+}
+
 /// The m × m inputs of the gradient's m × m part (method.md §6).
 pub(crate) struct MmParts<'a> {
     pub h_inv: &'a [f64],

@@ -29,7 +29,7 @@
 use super::error::KrrError;
 use super::kernel;
 use super::linalg::{self, dot};
-use super::mm::{kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmParts};
+use super::mm::{assemble, kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmParts};
 use super::problem::{Eval, Grad, Objective, Params, Problem, Ridge};
 
 /// The forward pass, keeping what the backward pass needs.
@@ -71,17 +71,7 @@ fn forward(problem: &Problem, params: &Params, settings: &Ridge) -> Result<Forwa
         *ri -= yi;
     }
     let data_fit = dot(&r, &r) / n as f64;
-    let rkhs_norm2 = dot(&beta, &linalg::matvec(&kj, &beta, m, m));
-    let d_term = data_fit + lambda * rkhs_norm2;
-
-    let (alpha, c) = settings.weights(n);
-    let loss = alpha * t1 + c * t2 * d_term + 2.0 * d_term;
-    if !loss.is_finite() {
-        return Err(KrrError::NonFinite(format!(
-            "objective: loss = {loss} (T1 = {t1}, T2 = {t2}, D = {d_term})"
-        )));
-    }
-    let eval = Eval { loss, data_fit, rkhs_norm2, d_term, t1, t2, beta };
+    let (eval, alpha, c) = assemble(data_fit, (t1, t2), beta, &kj, settings, (n, m))?;
     Ok(Forward { n, m, knm, kmm, lk, a, h_inv, kj_inv, r, alpha, c, eval })
 }
 
