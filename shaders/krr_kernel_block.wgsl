@@ -4,10 +4,10 @@
 // of the kernel itself near 1), and the fixed point lets krr_gram.wgsl form K~^T K~ *exactly* in
 // integer arithmetic (see there for why that matters).
 //
-// k(x, z) = exp(-1/2 sum_d ((x_d - z_d) / s_d)^2), from squared *differences* (no |x|^2 + |z|^2 -
-// 2 x.z expansion, which cancels badly in f32). A 64 x 64 output tile per workgroup of 16 x 16
-// invocations (4 x 4 outputs each); X and Z are staged in workgroup memory 16 dimensions at a time
-// (8 KiB), so any D <= 64 fits the 16 KiB WebGPU default.
+// k(x, z) = exp(-1/2 sum_d ((x_d - z_d) / s_d)^2), the distances from krr_distance_tile.wgsl
+// (prepended at pipeline creation). A 64 x 64 output tile per workgroup of 16 x 16 invocations
+// (4 x 4 outputs each); X and Z are staged in workgroup memory 16 dimensions at a time (8 KiB),
+// so any D <= 64 fits the 16 KiB WebGPU default.
 //
 // D (the feature dimension) is pasted in at pipeline creation ({{D}}).
 
@@ -49,54 +49,11 @@ fn kernel_block(
 ) {
     let r0 = wg.y * 64u;
     let c0 = wg.x * 64u;
-    var d0s = vec4<f32>();
-    var d1s = vec4<f32>();
-    var d2s = vec4<f32>();
-    var d3s = vec4<f32>();
-    for (var d0 = 0u; d0 < D; d0 += TD) {
-        for (var q = 0u; q < 4u; q++) {
-            let e = li + 256u * q;
-            let rr = e / TD;
-            let t = e % TD;
-            let dim = d0 + t;
-            let row = r0 + rr;
-            let col = c0 + rr;
-            var xv = 0.0;
-            if (row < dims.rows && dim < D) {
-                xv = x[(dims.row0 + row) * D + dim];
-            }
-            xs[rr][t] = xv;
-            var zv = 0.0;
-            if (col < dims.m && dim < D) {
-                zv = z[col * D + dim];
-            }
-            zs[t][rr % 16u][rr / 16u] = zv;
-        }
-        if (li < TD) {
-            var wv = 0.0;
-            if (d0 + li < D) {
-                wv = inv_s[d0 + li];
-            }
-            ws[li] = wv;
-        }
-        workgroupBarrier();
-        for (var t = 0u; t < TD; t++) {
-            let w = ws[t];
-            let zv = zs[t][lid.x];
-            let u0 = (xs[lid.y][t] - zv) * w;
-            let u1 = (xs[lid.y + 16u][t] - zv) * w;
-            let u2 = (xs[lid.y + 32u][t] - zv) * w;
-            let u3 = (xs[lid.y + 48u][t] - zv) * w;
-            d0s += u0 * u0;
-            d1s += u1 * u1;
-            d2s += u2 * u2;
-            d3s += u3 * u3;
-        }
-        workgroupBarrier();
-    }
+    // Rows of this block are rows dims.row0 + r0 + ... of the whole problem's x.
+    let tile = distance_tile(dims.row0 + r0, dims.row0 + dims.rows, c0, dims.m, li, lid);
     let c = c0 + lid.x;
-    store_row(r0 + lid.y, c, d0s);
-    store_row(r0 + lid.y + 16u, c, d1s);
-    store_row(r0 + lid.y + 32u, c, d2s);
-    store_row(r0 + lid.y + 48u, c, d3s);
+    store_row(r0 + lid.y, c, tile.d0);
+    store_row(r0 + lid.y + 16u, c, tile.d1);
+    store_row(r0 + lid.y + 32u, c, tile.d2);
+    store_row(r0 + lid.y + 48u, c, tile.d3);
 }

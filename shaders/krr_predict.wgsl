@@ -1,9 +1,9 @@
 // The Nyström predictor g(q) = sum_j beta_j k(q, z_j) for a chunk of queries.
 //
-// Tiled like krr_kernel_block.wgsl: a workgroup of 16 x 16 invocations owns 64 queries and sweeps
-// the inducing points [j_begin, j_end) 64 at a time; invocation (x, y) computes the kernel for
-// queries y + 16 a and inducing points x + 16 b (a, b = 0..3) as four vec4s, dimensions staged 16
-// at a time (queries, Z and 1/s in workgroup memory), then adds beta-weighted rows into a
+// Tiled like krr_kernel_block.wgsl, with the same distances (krr_distance_tile.wgsl, prepended at
+// pipeline creation): a workgroup of 16 x 16 invocations owns 64 queries and sweeps the inducing
+// points [j_begin, j_end) 64 at a time; invocation (x, y) gets the kernel for queries y + 16 a
+// and inducing points x + 16 b (a, b = 0..3) as four vec4s, then adds beta-weighted rows into a
 // Kahan-compensated sum (beta can be large with cancelling signs); at the end the 16 partial sums
 // of each query are added in workgroup memory.
 //
@@ -18,7 +18,7 @@ struct Dims { q: u32, j_begin: u32, j_end: u32, first: u32, one: f32, _a: u32, _
 const D: u32 = {{D}}u;
 const TD: u32 = 16u;
 
-@group(0) @binding(0) var<storage, read> queries: array<f32>;  // q x D
+@group(0) @binding(0) var<storage, read> x: array<f32>;        // queries, q x D
 @group(0) @binding(1) var<storage, read> z: array<f32>;        // m x D
 @group(0) @binding(2) var<storage, read> inv_s: array<f32>;    // D
 @group(0) @binding(3) var<storage, read> beta: array<f32>;     // m
@@ -51,51 +51,7 @@ fn predict(
     var s2 = s0;
     var s3 = s0;
     for (var j0 = dims.j_begin; j0 < dims.j_end; j0 += 64u) {
-        var d0s = vec4<f32>();
-        var d1s = vec4<f32>();
-        var d2s = vec4<f32>();
-        var d3s = vec4<f32>();
-        for (var d0 = 0u; d0 < D; d0 += TD) {
-            for (var q = 0u; q < 4u; q++) {
-                let e = li + 256u * q;
-                let rr = e / TD;
-                let t = e % TD;
-                let dim = d0 + t;
-                let row = r0 + rr;
-                let col = j0 + rr;
-                var xv = 0.0;
-                if (row < dims.q && dim < D) {
-                    xv = queries[row * D + dim];
-                }
-                xs[rr][t] = xv;
-                var zv = 0.0;
-                if (col < dims.j_end && dim < D) {
-                    zv = z[col * D + dim];
-                }
-                zs[t][rr % 16u][rr / 16u] = zv;
-            }
-            if (li < TD) {
-                var wv = 0.0;
-                if (d0 + li < D) {
-                    wv = inv_s[d0 + li];
-                }
-                ws[li] = wv;
-            }
-            workgroupBarrier();
-            for (var t = 0u; t < TD; t++) {
-                let w = ws[t];
-                let zv = zs[t][lid.x];
-                let u0 = (xs[lid.y][t] - zv) * w;
-                let u1 = (xs[lid.y + 16u][t] - zv) * w;
-                let u2 = (xs[lid.y + 32u][t] - zv) * w;
-                let u3 = (xs[lid.y + 48u][t] - zv) * w;
-                d0s += u0 * u0;
-                d1s += u1 * u1;
-                d2s += u2 * u2;
-                d3s += u3 * u3;
-            }
-            workgroupBarrier();
-        }
+        let tile = distance_tile(r0, dims.q, j0, dims.j_end, li, lid);
         // beta of this invocation's four inducing points (0 past the end).
         var bv = vec4<f32>();
         for (var b = 0u; b < 4u; b++) {
@@ -104,10 +60,10 @@ fn predict(
                 bv[b] = beta[j];
             }
         }
-        s0 = kahan(s0, dot(bv, exp(-0.5 * d0s)));
-        s1 = kahan(s1, dot(bv, exp(-0.5 * d1s)));
-        s2 = kahan(s2, dot(bv, exp(-0.5 * d2s)));
-        s3 = kahan(s3, dot(bv, exp(-0.5 * d3s)));
+        s0 = kahan(s0, dot(bv, exp(-0.5 * tile.d0)));
+        s1 = kahan(s1, dot(bv, exp(-0.5 * tile.d1)));
+        s2 = kahan(s2, dot(bv, exp(-0.5 * tile.d2)));
+        s3 = kahan(s3, dot(bv, exp(-0.5 * tile.d3)));
     }
     red[lid.y][lid.x] = s0.s - s0.c;
     red[lid.y + 16u][lid.x] = s1.s - s1.c;

@@ -64,7 +64,8 @@ use super::mm::{assemble, kmm_side, mm_forward, mm_grad, MmForward, MmGrad, MmPa
 use super::problem::{Eval, Grad, Params, Problem, Ridge};
 use crate::gpu::{now as now_s, specialise, to_u32, Gpu, GpuError};
 
-const KERNEL_WGSL: &str = include_str!("../../shaders/krr_kernel_block.wgsl");
+/// The kernel block, after the distance tile it shares with the predictor.
+const KERNEL_WGSL: &str = concat!(include_str!("../../shaders/krr_distance_tile.wgsl"), include_str!("../../shaders/krr_kernel_block.wgsl"));
 const GRAM_WGSL: &str = include_str!("../../shaders/krr_gram.wgsl");
 const GRAD_WGSL: &str = include_str!("../../shaders/krr_grad.wgsl");
 

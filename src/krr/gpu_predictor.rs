@@ -7,7 +7,8 @@ use super::error::KrrError;
 use super::problem::Params;
 use crate::gpu::{specialise, to_u32, Gpu, GpuError};
 
-const PREDICT_WGSL: &str = include_str!("../../shaders/krr_predict.wgsl");
+/// The predictor, after the distance tile it shares with the objective's kernel block.
+const PREDICT_WGSL: &str = concat!(include_str!("../../shaders/krr_distance_tile.wgsl"), include_str!("../../shaders/krr_predict.wgsl"));
 
 
 /// Binding indices of `shaders/krr_predict.wgsl`.
