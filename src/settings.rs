@@ -4,7 +4,7 @@
 //! its form label, one line of help, its kind and range, and its default; everything else is
 //! derived from it: [`Settings::default`], the CLI's parsing and usage text (`src/bin/nkrr.rs`),
 //! the wasm API's options and the page's form and share links (`settings_table` in
-//! `src/web/api.rs`, read by `web/settings.js`). A default or a range written anywhere else is a
+//! `src/web/page_api.rs`, read by `web/settings.js`). A default or a range written anywhere else is a
 //! bug: `tests/settings.rs` and `tests/browser/settings.test.mjs` check that the CLI, the JS API
 //! and the page offer the same settings with the same defaults and ranges. (In the spirit of
 //! ripgrep's one list of flags.)

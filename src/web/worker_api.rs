@@ -1,22 +1,22 @@
 //! The reconstruction as a JavaScript API, meant to run in a Web Worker (`web/worker.js`) so
-//! the page stays responsive: PLY bytes and a plain options object in, a GLB, the mesh's arrays
+//! the page stays responsive: cloud bytes and a plain options object in, a GLB, the mesh's arrays
 //! (for the viewer) and a stats object out. One [`Engine`] (device + uploaded network weights)
 //! is kept per thread and reused by later calls; it is dropped when its device is lost, and the
-//! next call makes a new one.
+//! next call makes a new one. What the page itself calls is [`super::page_api`].
 
 use std::cell::RefCell;
 use std::rc::Rc;
 use std::sync::Arc;
 
-use js_sys::{Array, Float32Array, Function, Object, Reflect, Uint32Array, Uint8Array};
+use js_sys::{Array, Float32Array, Function, Object, Uint32Array, Uint8Array};
 use wasm_bindgen::prelude::*;
 
 use super::js::set;
+use super::options::{error, Options};
 use crate::gpu::{now, Gpu};
-use crate::io::mesh_out::{self, MeshFormat};
 use crate::io::gltf;
 use crate::pipeline::{Engine, PipelineError, Reconstruction, Stage};
-use crate::settings::{self, Kind, Settings, Value};
+use crate::settings::{self, Settings};
 
 thread_local! {
     static ENGINE: RefCell<Option<Rc<Engine>>> = const { RefCell::new(None) };
@@ -79,78 +79,6 @@ pub fn simulate_device_loss() -> bool {
     note_trouble("the GPU device was lost (simulated)".into());
     engine.gpu.device.destroy();
     true
-}
-
-/// A mesh file written on the page from the arrays `reconstruct` resolves to (`positions`,
-/// `normals`: xyz per vertex; `colors`: RGBA per vertex or empty; `indices`: three per
-/// triangle, possibly a subset after trimming), so downloads match what the view shows.
-/// `format` is "glb", "ply", "obj" or "stl"; vertices no triangle uses are left out;
-/// `translation` (empty or xyz) is the GLB root translation of far-off clouds (the other
-/// formats add it to their f32 positions); `glb` is the GLB geometry ("plain", "quantized" or
-/// "meshopt": the `glb` setting's values).
-#[wasm_bindgen]
-pub fn mesh_file(
-    format: &str,
-    positions: &[f32],
-    normals: &[f32],
-    colors: &[u8],
-    indices: &[u32],
-    name: &str,
-    translation: &[f64],
-    glb: &str,
-) -> Result<Vec<u8>, JsError> {
-    let n = positions.len() / 3;
-    if positions.len() % 3 != 0 || normals.len() != positions.len() || !(colors.is_empty() || colors.len() == 4 * n) {
-        return Err(JsError::new("mesh_file: positions and normals need 3 floats per vertex, colours 4 bytes"));
-    }
-    let triples = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
-    let mut mesh = crate::mesh::Mesh {
-        positions: triples(positions),
-        normals: triples(normals),
-        colors: (!colors.is_empty()).then(|| colors.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect()),
-        indices: indices.to_vec(),
-    };
-    if mesh.indices.len() % 3 != 0 || mesh.indices.iter().any(|&i| i as usize >= n) {
-        return Err(JsError::new("mesh_file: indices must be triples of vertex indices in range"));
-    }
-    let keep = vec![true; mesh.indices.len() / 3];
-    crate::mesh::trim::retain_triangles(&mut mesh, &keep);
-    let translation: Option<[f64; 3]> = (translation.len() == 3).then(|| [translation[0], translation[1], translation[2]]);
-    let format = MeshFormat::from_extension(format)
-        .ok_or_else(|| JsError::new(&format!("mesh_file: unknown format '{format}' (glb, ply, obj or stl)")))?;
-    let mut settings = Settings::default();
-    let glb_setting = settings::by_key("glb").expect("in the table");
-    glb_setting
-        .parse(glb)
-        .and_then(|v| glb_setting.set(&mut settings, v))
-        .map_err(|e| JsError::new(&format!("mesh_file: {e}")))?;
-    mesh_out::write(format, &mesh, Some(name.to_string()), translation, &format!("nkrr reconstruction of {name}"), settings.glb)
-        .map(|w| w.bytes)
-        .map_err(|e| JsError::new(&format!("mesh_file ({format:?}): {e}")))
-}
-
-/// Milliseconds of the CPU's share of one tuning step with `m` inducing points and 32 features
-/// (median of `reps`), in this build: what a real GPU leaves to the worker's thread at every
-/// step (see `krr::mm::algebra_step_seconds`). For the benchmark in tests/browser.
-#[wasm_bindgen]
-pub fn tuning_step_ms(m: usize, reps: usize) -> Result<f64, JsError> {
-    // m within the settings table's range, refused outside it (not quietly clamped).
-    let def = crate::settings::by_key("m").expect("the table has m");
-    def.parse(&m.to_string()).map_err(|e| JsError::new(&format!("tuning_step_ms: {e}")))?;
-    Ok(1e3 * crate::krr::mm::algebra_step_seconds(m, 32, reps))
-}
-
-/// The triangles of a mesh (given as `reconstruct`'s arrays) that lie within `factor` × the
-/// mean point spacing of `points` (xyz, the cloud or an even subsample of it), as indices into
-/// the same vertices: the page's live trim, without re-running the reconstruction (the
-/// pipeline's `trim` option does the same on the points the network saw).
-#[wasm_bindgen]
-pub fn trim_indices(points: &[f32], positions: &[f32], indices: &[u32], factor: f32) -> Vec<u32> {
-    let triples = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
-    match crate::mesh::trim::near_triangles(&triples(positions), indices, &triples(points), factor).keep {
-        None => indices.to_vec(),
-        Some(keep) => indices.chunks_exact(3).zip(keep).filter(|(_, k)| *k).flat_map(|(t, _)| t).copied().collect(),
-    }
 }
 
 /// Reconstructs a surface from a cloud file's bytes (any format of [`crate::io::read_cloud`]).
@@ -311,137 +239,6 @@ fn tuning_object(t: &crate::field::TuningSummary) -> Object {
     set(&o, "initialDataFit", t.initial_data_fit);
     set(&o, "bestDataFit", t.best_data_fit);
     o
-}
-
-/// The settings a page may give, checked.
-struct Options {
-    settings: Settings,
-    name: Option<String>,
-}
-
-impl Options {
-    /// Reads every key of the settings table from `o` (numbers may come as numeric strings,
-    /// as form fields give them; a setting that can be off is off at 0, "" or null), plus
-    /// `name`, the glTF node's name.
-    fn from_js(o: &JsValue) -> Result<Options, JsValue> {
-        let mut settings = Settings::default();
-        let mut name = None;
-        if o.is_undefined() || o.is_null() {
-            return Ok(Options { settings, name });
-        }
-        if !o.is_object() {
-            return Err(error("TypeError", "options must be an object"));
-        }
-        for def in settings::TABLE {
-            let raw = Reflect::get(o, &JsValue::from_str(def.key))?;
-            if raw.is_undefined() {
-                continue;
-            }
-            let value = if raw.is_null() {
-                Ok(Value::Off)
-            } else if let Some(b) = raw.as_bool() {
-                Ok(Value::Bool(b))
-            } else if let Some(x) = raw.as_f64() {
-                Ok(Value::Num(x))
-            } else if let Some(t) = raw.as_string() {
-                def.parse(&t)
-            } else {
-                Err(format!("{} must be {}, not {}", def.key, def.range(), raw.js_typeof().as_string().unwrap_or_default()))
-            };
-            value.and_then(|v| def.set(&mut settings, v)).map_err(|e| error("RangeError", &e))?;
-        }
-        if let Some(v) = field(o, "name")? {
-            name = Some(v.as_string().ok_or_else(|| error("TypeError", "name must be a string"))?);
-        }
-        Ok(Options { settings, name })
-    }
-}
-
-/// Every setting the options of [`reconstruct`] and [`preflight`] take, for the page's form and
-/// share links (`web/settings.js`), in display order: `{ key, flag, label, help, kind ("int" |
-/// "float" | "choice" | "switch"), min?, max?, choices? [{value, label}], presets [{value,
-/// label}], default (null: off), canBeOff, nkrrOnly, advanced }`. From [`crate::settings::TABLE`].
-#[wasm_bindgen]
-pub fn settings_table() -> Array {
-    let js = |v: Value| -> JsValue {
-        match v {
-            Value::Off => JsValue::NULL,
-            Value::Bool(b) => b.into(),
-            Value::Num(x) => x.into(),
-            Value::Choice(c) => c.into(),
-        }
-    };
-    let pairs = |items: Vec<(JsValue, &str)>| -> Array {
-        items
-            .into_iter()
-            .map(|(value, label)| {
-                let o = Object::new();
-                set(&o, "value", value);
-                set(&o, "label", label);
-                JsValue::from(o)
-            })
-            .collect()
-    };
-    settings::TABLE
-        .iter()
-        .map(|def| {
-            let o = Object::new();
-            set(&o, "key", def.key);
-            set(&o, "flag", def.flag);
-            set(&o, "label", def.label);
-            set(&o, "help", def.help);
-            let kind = match def.kind {
-                Kind::Int { min, max } | Kind::Float { min, max } => {
-                    set(&o, "min", min);
-                    set(&o, "max", max);
-                    if matches!(def.kind, Kind::Int { .. }) { "int" } else { "float" }
-                }
-                Kind::Choice(choices) => {
-                    set(&o, "choices", pairs(choices.iter().map(|(v, l)| (JsValue::from_str(v), *l)).collect()));
-                    "choice"
-                }
-                Kind::Switch => "switch",
-            };
-            set(&o, "kind", kind);
-            set(&o, "presets", pairs(def.presets.iter().map(|(v, l)| (JsValue::from_f64(*v), *l)).collect()));
-            set(&o, "default", js(def.default));
-            set(&o, "canBeOff", def.can_be_off);
-            set(&o, "nkrrOnly", def.nkrr_only);
-            set(&o, "advanced", def.advanced);
-            JsValue::from(o)
-        })
-        .collect()
-}
-
-/// The preflight for a cloud of `points` points (`colours`: whether it has colours)
-/// reconstructed with `options` (as for [`reconstruct`]) on an adapter whose largest buffer
-/// binding is `binding` bytes (`software`: a CPU adapter such as SwiftShader; the page takes
-/// both from [`super::Viewer::adapter_facts`], whose adapter the worker shares): one line per
-/// stage with its GPU and host memory, the limits, and what will be changed to fit. The
-/// reconstruction applies the same plan.
-#[wasm_bindgen]
-pub fn preflight(points: usize, colours: bool, options: JsValue, binding: f64, software: bool) -> Result<Vec<String>, JsValue> {
-    let opts = Options::from_js(&options)?;
-    let config = crate::net::NetConfig::prior().map_err(|e| error("NetError", &e.to_string()))?;
-    let facts = crate::plan::DeviceFacts {
-        binding: binding.max(0.0) as u64,
-        software,
-        host_budget: Some(crate::plan::WASM_HOST_BUDGET),
-    };
-    Ok(crate::plan::memory_plan(points, colours, &opts.settings, &config, &facts).lines())
-}
-
-/// `o[key]`, or None when it is undefined or null.
-fn field(o: &JsValue, key: &str) -> Result<Option<JsValue>, JsValue> {
-    let v = Reflect::get(o, &JsValue::from_str(key))?;
-    Ok((!v.is_undefined() && !v.is_null()).then_some(v))
-}
-
-/// A JS `Error` with `name` set, so callers can tell a cancel ("AbortError") from a failure.
-fn error(name: &str, message: &str) -> JsValue {
-    let e = js_sys::Error::new(message);
-    e.set_name(name);
-    e.into()
 }
 
 fn pipeline_error(e: PipelineError) -> JsValue {
