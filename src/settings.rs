@@ -777,11 +777,14 @@ impl Setting {
 
     /// Reads `text` (a CLI argument, a share link's parameter, a form field) as a value of this
     /// setting.
+    /// The one rule for text, wherever it comes from (the page's share links are read by this
+    /// too, through the wasm module): switches take `1 true on yes` and `0 false off no` in any
+    /// letter case; a number that can be off is off at `0`, `off` or empty.
     pub fn parse(&self, text: &str) -> Result<Value, String> {
         let text = text.trim();
         match self.kind {
             Kind::Int { .. } | Kind::Float { .. } => {
-                if text.is_empty() && self.can_be_off {
+                if self.can_be_off && (text.is_empty() || text.eq_ignore_ascii_case("off")) {
                     return Ok(Value::Off);
                 }
                 let x: f64 = text.parse().map_err(|_| self.range_error(format!("'{text}'")))?;
@@ -791,7 +794,7 @@ impl Setting {
                 let c = choices.iter().find(|(value, _)| *value == text).map(|(value, _)| *value);
                 c.map(Value::Choice).ok_or_else(|| self.range_error(format!("'{text}'"))).and_then(|v| self.check(v))
             }
-            Kind::Switch => match text {
+            Kind::Switch => match text.to_ascii_lowercase().as_str() {
                 // A bare share-link parameter (`?euclidean`) means on.
                 "" | "true" | "1" | "on" | "yes" => Ok(Value::Bool(true)),
                 "false" | "0" | "off" | "no" => Ok(Value::Bool(false)),
@@ -1011,6 +1014,11 @@ mod tests {
         assert!(by_key("units").unwrap().parse("furlong").is_err());
         assert!(by_key("method").unwrap().parse("").is_err());
         assert_eq!(by_key("euclidean").unwrap().parse(""), Ok(Value::Bool(true)));
+        // One rule for the CLI, the JS API and share links: letter case and "off".
+        assert_eq!(by_key("euclidean").unwrap().parse("OFF"), Ok(Value::Bool(false)));
+        assert_eq!(by_key("euclidean").unwrap().parse("Yes"), Ok(Value::Bool(true)));
+        assert_eq!(by_key("labelClip").unwrap().parse("Off"), Ok(Value::Off));
+        assert!(by_key("m").unwrap().parse("off").is_err());
     }
 
     #[test]

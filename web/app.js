@@ -399,7 +399,7 @@ function wireInput() {
 
 /** Builds the settings form from the wasm module's table. */
 function buildSettings() {
-  settings = new Settings(nk.settings_table(), $('settings-form'));
+  settings = new Settings(nk.settings_table(), $('settings-form'), nk.parse_setting);
 }
 
 /** The offline copy (web/sw.js), relative to this page so that any sub-path works; without it

@@ -15,11 +15,6 @@
 /** The id of a setting's control: its key in kebab case (removeSmall → remove-small). */
 export const settingId = (key) => key.replace(/[A-Z]/g, (c) => `-${c.toLowerCase()}`);
 
-// Switch values in share links; a bare `?key` (empty value) means on.
-const ON = new Set(['', '1', 'true', 'yes', 'on']);
-const OFF = new Set(['0', 'false', 'no', 'off']);
-const NUMBER = /^[+-]?(\d+\.?\d*|\.\d+)(e[+-]?\d+)?$/i;
-
 /** A table entry with its optional parts filled in. */
 function normalise(s) {
   return {
@@ -39,16 +34,17 @@ function element(tag, props = {}) {
   return Object.assign(document.createElement(tag), props);
 }
 
-const range = (s) => `${s.min ?? '−∞'} to ${s.max ?? '∞'}`;
-
 export class Settings {
   /**
    * Builds the form inside `container`.
    * @param {object[]} table  the wasm module's settings_table()
    * @param {HTMLElement} container
+   * @param {(key: string, text: string) => any} parseText  the wasm module's parse_setting: the
+   *   value of a setting's text, or a throw naming the setting and its range
    */
-  constructor(table, container) {
+  constructor(table, container, parseText) {
     this.table = Array.from(table, normalise);
+    this.parseText = parseText;
     this.byKey = new Map(this.table.map((s) => [s.key, s]));
     this.container = container;
     /** What the share link's settings had wrong (each was not used). */
@@ -199,27 +195,14 @@ export class Settings {
     return out;
   }
 
-  /** Checks a share link's text for setting `s`: { value } or { error }. */
+  /** Checks a share link's text for setting `s`: { value } or { error }, by the wasm module's
+   *  parse_setting (the settings table's one rule and wording, the CLI's too). */
   _parse(s, text) {
-    const t = text.trim();
-    if (s.kind === 'switch') {
-      const l = t.toLowerCase();
-      if (ON.has(l)) return { value: true };
-      if (OFF.has(l)) return { value: false };
-      return { error: 'is neither on (1) nor off (0)' };
+    try {
+      return { value: this.parseText(s.key, text) };
+    } catch (e) {
+      return { error: e.message ?? String(e) };
     }
-    if (s.kind === 'choice') {
-      if (s.choices.some((c) => c.value === t)) return { value: t };
-      return { error: `is not one of ${s.choices.map((c) => (c.value === '' ? '"" (as in the file)' : c.value)).join(', ')}` };
-    }
-    if (s.canBeOff && (t === '' || t.toLowerCase() === 'off' || (NUMBER.test(t) && Number(t) === 0))) return { value: null };
-    if (!NUMBER.test(t)) return { error: 'is not a number' };
-    const x = Number(t);
-    if (s.kind === 'int' && !Number.isInteger(x)) return { error: 'is not a whole number' };
-    if ((s.min !== null && x < s.min) || (s.max !== null && x > s.max)) {
-      return { error: `is out of range (${range(s)}${s.canBeOff ? ', or 0 for off' : ''})` };
-    }
-    return { value: x };
   }
 
   _set(s, v) {
@@ -241,7 +224,7 @@ export class Settings {
     const s = this.byKey.get(key);
     if (!s) return `${key} is not a setting`;
     const r = this._parse(s, text);
-    if (r.error) return `${s.label} (${key}=${text}) ${r.error}; it was not used.`;
+    if (r.error) return `${s.label} (${key}=${text}): ${r.error}; it was not used.`;
     this._set(s, r.value);
     if (s.advanced && !this._isDefault(s, this.value(key))) this.advanced.open = true;
     return null;

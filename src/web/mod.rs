@@ -10,7 +10,7 @@ mod cloud;
 mod js;
 mod viewer;
 
-pub use page_api::{preflight, settings_table};
+pub use page_api::{parse_setting, preflight, settings_table};
 pub use worker_api::{prepare_engine, reconstruct, simulate_device_loss};
 pub use cloud::{cloud_extensions, parse_cloud, Cloud};
 pub use viewer::Viewer;

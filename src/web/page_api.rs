@@ -155,3 +155,22 @@ pub fn preflight(points: usize, colours: bool, options: JsValue, binding: f64, s
     };
     Ok(crate::plan::memory_plan(points, colours, &opts.settings, &config, &facts).lines())
 }
+
+/// Reads `text` as a value of setting `key` by the settings table's one rule
+/// ([`crate::settings::Setting::parse`], the CLI's too): the page's share links and form come
+/// here, so they take the same text and give the same wording. Returns the value as the page
+/// holds it (a number, a boolean, a choice's string, `""` for an empty choice, null for off) or
+/// throws a RangeError whose message names the setting and its range.
+#[wasm_bindgen]
+pub fn parse_setting(key: &str, text: &str) -> Result<JsValue, JsValue> {
+    let def = settings::by_key(key).ok_or_else(|| error("RangeError", &format!("{key} is not a setting")))?;
+    let v = def.parse(text).and_then(|v| def.check(v)).map_err(|e| error("RangeError", &e))?;
+    Ok(match (v, def.kind) {
+        (Value::Off, Kind::Choice(_)) => JsValue::from_str(""),
+        (Value::Off, _) => JsValue::NULL,
+        (Value::Bool(b), _) => JsValue::from_bool(b),
+        (Value::Num(x), _) => JsValue::from_f64(x),
+        (Value::Choice(c), _) => JsValue::from_str(c),
+    })
+}
+

@@ -215,7 +215,8 @@ test('a share link value that does not fit its setting is reported and not used;
     const p = await problems(page);
     assert.equal(p.length, 4, JSON.stringify(p));
     for (const key of Object.keys(bad)) assert.ok(p.some((l) => l.includes(`${key}=${bad[key]}`)), `${key} not reported: ${JSON.stringify(p)}`);
-    assert.ok(p.some((l) => /out of range/.test(l)), JSON.stringify(p));
+    // The wording is the settings table's (the CLI's): the setting, its range and what was given.
+    assert.ok(p.some((l) => l.includes(`${int.key} must be a whole number from ${int.min} to ${int.max}`)), JSON.stringify(p));
     assert.equal(await page.isVisible('#settings-problems'), true);
     assert.equal(await page.$$eval('#settings-problems li', (l) => l.length), 4);
     const o = await readOptions(page);
