@@ -2,7 +2,7 @@
 //!
 //! [`TABLE`] holds, for each setting, its JS option and share-link key, its command-line flag,
 //! its form label, one line of help, its kind and range, and its default; everything else is
-//! derived from it: [`Settings::default`], the CLI's parsing and usage text (`src/bin/nkrr.rs`),
+//! derived from it: [`Settings::default`], the CLI's parsing and usage text (`src/bin/nkrr/`, whose own flags are the table in `args.rs`),
 //! the wasm API's options and the page's form and share links (`settings_table` in
 //! `src/web/page_api.rs`, read by `web/settings.js`). A default or a range written anywhere else is a
 //! bug: `tests/settings.rs` and `tests/browser/settings.test.mjs` check that the CLI, the JS API

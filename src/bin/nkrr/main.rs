@@ -4,60 +4,13 @@ use std::process::ExitCode;
 
 use nkrr::settings::{Method, Settings};
 
-const USAGE: &str = "\
-nkrr — surface reconstruction from raw point clouds
+use args::Parsed;
 
-USAGE:
-    CLOUD is a point cloud in any of these formats, recognised by its content: PLY, text
-    (XYZ/PTS/CSV/TXT: x y z per line, optional intensity, r g b and nx ny nz), LAS/LAZ 1.0-1.4,
-    E57 (every scan, with its pose). Normals are never needed.
+mod args;
 
-    nkrr info CLOUD [reconstruct options]
-                            point count, bounds, a units guess, attributes, warnings, and the
-                            memory each stage needs on this machine's GPU (for the options)
-    nkrr reconstruct CLOUD -o OUT.glb|.ply|.obj|.stl [--weights PRIOR.safetensors] [OPTIONS]
-                            a watertight mesh of the cloud; the extension picks the format;
-                            --weights: a network prior in the built-in one's format (one
-                            exported by training/export.py) instead of the built-in one
-{OPTIONS}    nkrr metrics GT.obj RECON.glb|RECON.obj [RECON ...] [--seed N]
-                            one JSON line per reconstruction: cd1x100, fscore, nc, iou
-                            (null unless GT is watertight), watertight (the reconstruction's),
-                            by the protocol of the eval data (see nkrr::eval); --seed picks
-                            other samples, to see the sampling noise              [1]
-    nkrr eval DIR [--sizes 3k,10k] [--methods network,nkrr] [--shapes A,B] [--out PREFIX]
-              [--keep-meshes] [--weights PRIOR.safetensors]
-              [reconstruct options except -o and --method]
-                            reconstruct every DIR/NAME-SIZE.ply with each method, score it
-                            against DIR/NAME.obj; writes PREFIX.md and PREFIX.json  [eval]
-        methods: {METHODS}
-                 (nkrr-paper: the paper's method: its tuning, pairs, no fit, no filters)
-        --keep-meshes              also write PREFIX-NAME-SIZE-METHOD.glb
-    nkrr bench [--sizes 3000,10000,50000] [--ms 500,1000] [reconstruct options]
-                            per-stage times on a synthetic noisy torus (adapter printed)
-    nkrr gpu                the GPU adapter wgpu finds here and its limits
-    nkrr --help | --version
-";
-
-/// The usage text, with the reconstruction options from the settings table.
+/// The usage text, made from the command and flag tables (`args.rs`) and the settings table.
 fn usage_text() -> String {
-    USAGE.replace("{OPTIONS}", &nkrr::settings::usage()).replace("{METHODS}", &wrapped(&nkrr::eval::variant_names(), 17, 96))
-}
-
-/// `text` broken at ", " into lines of at most `width` characters, the later ones indented by
-/// `indent` spaces.
-fn wrapped(text: &str, indent: usize, width: usize) -> String {
-    let mut lines = vec![String::new()];
-    for word in text.split(", ") {
-        let line = lines.last_mut().expect("one line at least");
-        if !line.is_empty() && indent + line.len() + word.len() + 2 > width {
-            line.push(',');
-            lines.push(String::new());
-        } else if !line.is_empty() {
-            line.push_str(", ");
-        }
-        lines.last_mut().expect("one line at least").push_str(word);
-    }
-    lines.join(&format!("\n{}", " ".repeat(indent)))
+    args::usage()
 }
 
 /// `s` with control characters shown escaped (`\x1b`, `\u{9b}`), except newline and tab:
@@ -183,18 +136,9 @@ fn read_scan(path: &str) -> Result<(Vec<u8>, nkrr::io::ScanFile), Failure> {
 }
 
 fn info(args: &[String]) -> Result<(), Failure> {
-    let mut settings = Settings::default();
-    let mut path = None;
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            s if reconstruct_option(s, &mut it, &mut settings)? => {}
-            s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
-            s if path.is_none() => path = Some(s.to_string()),
-            s => return Err(usage(&format!("unexpected argument '{s}'"))),
-        }
-    }
-    let path = path.ok_or_else(|| usage("info needs a cloud file"))?;
+    let p = parsed("info", args, Settings::default())?;
+    let path = one_operand(&p, "info needs a cloud file")?;
+    let settings = p.settings;
     let (bytes, scan) = read_scan(&path)?;
     let cloud = &scan.cloud;
     say!("file:       {path} ({} bytes)", bytes.len());
@@ -294,22 +238,11 @@ fn gpu() -> Result<(), Failure> {
 
 fn reconstruct(args: &[String]) -> Result<(), Failure> {
     use nkrr::pipeline::Stage;
-    let mut settings = Settings::default();
-    let mut input = None;
-    let mut output = None;
-    let mut weights = None;
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "-o" | "--output" => output = Some(value(&mut it, a)?),
-            "--weights" => weights = Some(read_weights(&value(&mut it, a)?)?),
-            s if reconstruct_option(s, &mut it, &mut settings)? => {}
-            s if s.starts_with('-') => return Err(usage(&format!("unknown option '{s}'"))),
-            s if input.is_none() => input = Some(s.to_string()),
-            s => return Err(usage(&format!("unexpected argument '{s}'"))),
-        }
-    }
-    let input = input.ok_or_else(|| usage("reconstruct needs an input cloud"))?;
+    let p = parsed("reconstruct", args, Settings::default())?;
+    let input = one_operand(&p, "reconstruct needs an input cloud")?;
+    let weights = p.value("--weights").map(read_weights).transpose()?;
+    let output = p.value("-o").map(str::to_string);
+    let settings = p.settings;
     let output = output.ok_or_else(|| usage("reconstruct needs -o OUT.glb"))?;
     use nkrr::io::mesh_out::{self, MeshFormat};
     let format = MeshFormat::from_path(&output)
@@ -418,23 +351,19 @@ fn write_file(path: &str, bytes: &[u8]) -> Result<(), Failure> {
     })
 }
 
-fn value(it: &mut std::slice::Iter<String>, name: &str) -> Result<String, Failure> {
-    it.next().cloned().ok_or_else(|| usage(&format!("{name} needs a value")))
+/// `args` read for `command` by the tables (`args.rs`), from `settings`; a bad one is a usage
+/// error.
+fn parsed(command: &str, args: &[String], settings: Settings) -> Result<Parsed, Failure> {
+    args::parse(command, args, settings).map_err(|e| usage(&e))
 }
 
-/// A reconstruction option (any setting of [`nkrr::settings::TABLE`]): applies `a`, taking
-/// its value from `it` when it has one, and returns true, or false when `a` is not one.
-fn reconstruct_option(a: &str, it: &mut std::slice::Iter<String>, settings: &mut Settings) -> Result<bool, Failure> {
-    let rest: Vec<String> = it.as_slice().iter().take(1).cloned().collect();
-    match nkrr::settings::apply_flag(settings, a, &rest) {
-        None => Ok(false),
-        Some(Err(e)) => Err(usage(&e)),
-        Some(Ok(used)) => {
-            for _ in 0..used {
-                it.next();
-            }
-            Ok(true)
-        }
+/// The one operand of a command that takes one: `missing` when there is none, a usage error
+/// naming the first extra one.
+fn one_operand(p: &Parsed, missing: &str) -> Result<String, Failure> {
+    match p.operands.as_slice() {
+        [one] => Ok(one.clone()),
+        [] => Err(usage(missing)),
+        [_, extra, ..] => Err(usage(&format!("unexpected argument '{extra}'"))),
     }
 }
 
@@ -468,25 +397,18 @@ fn list(s: &str, name: &str) -> Result<Vec<usize>, Failure> {
 
 fn bench(args: &[String]) -> Result<(), Failure> {
     use nkrr::pipeline::Engine;
-    let mut sizes = vec![3000, 10000, 50000];
-    let mut ms = vec![500, 1000];
-    let mut settings = Settings { method: Method::Nkrr, steps: 10, ..Settings::default() };
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--sizes" => sizes = list(&value(&mut it, a)?, a)?,
-            "--ms" => {
-                ms = list(&value(&mut it, a)?, a)?;
-                // Each m within the settings table's range, as --m is.
-                let def = nkrr::settings::by_key("m").expect("the table has m");
-                for m in &ms {
-                    def.parse(&m.to_string()).map_err(|e| usage(&format!("--ms: {e}")))?;
-                }
-            }
-            s if reconstruct_option(s, &mut it, &mut settings)? => {}
-            s => return Err(usage(&format!("unknown bench option '{s}'"))),
-        }
+    let p = parsed("bench", args, Settings { method: Method::Nkrr, steps: 10, ..Settings::default() })?;
+    if let Some(extra) = p.operands.first() {
+        return Err(usage(&format!("bench: unexpected argument '{extra}'")));
     }
+    let sizes = p.value("--sizes").map_or(Ok(vec![3000, 10000, 50000]), |v| list(v, "--sizes"))?;
+    let mut ms = p.value("--ms").map_or(Ok(vec![500, 1000]), |v| list(v, "--ms"))?;
+    // Each m within the settings table's range, as --m is.
+    let def = nkrr::settings::by_key("m").expect("the table has m");
+    for m in &ms {
+        def.parse(&m.to_string()).map_err(|e| usage(&format!("--ms: {e}")))?;
+    }
+    let settings = p.settings;
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
     say!("adapter: {}", gpu.describe());
     say!(
@@ -583,15 +505,11 @@ fn metrics_json(m: &nkrr::eval::Metrics) -> String {
 
 fn metrics(args: &[String]) -> Result<(), Failure> {
     let mut protocol = nkrr::eval::Protocol::default();
-    let mut paths: Vec<String> = Vec::new();
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--seed" => protocol.seed = parse(&value(&mut it, a)?, a)?,
-            s if s.starts_with('-') => return Err(usage(&format!("metrics: unknown option '{s}'"))),
-            s => paths.push(s.to_string()),
-        }
+    let p = parsed("metrics", args, Settings::default())?;
+    if let Some(seed) = p.value("--seed") {
+        protocol.seed = parse(seed, "--seed")?;
     }
+    let paths = p.operands;
     let [gt_path, recons @ ..] = paths.as_slice() else {
         return Err(usage("metrics needs a ground-truth mesh and at least one reconstruction"));
     };
@@ -628,32 +546,16 @@ struct EvalRun {
 }
 
 fn eval(args: &[String]) -> Result<(), Failure> {
-    let mut dir = None;
-    let mut sizes: Vec<String> = vec!["3k".into(), "10k".into()];
-    let mut methods: Vec<String> = vec!["network".into(), "nkrr".into()];
-    let mut shapes: Option<Vec<String>> = None;
-    let mut out = "eval".to_string();
-    let mut keep = false;
-    let mut weights = None;
-    let mut base = Settings::default();
-    let names = |s: String| -> Vec<String> { s.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect() };
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--sizes" => sizes = names(value(&mut it, a)?),
-            "--methods" => methods = names(value(&mut it, a)?),
-            "--shapes" => shapes = Some(names(value(&mut it, a)?)),
-            "--out" => out = value(&mut it, a)?,
-            "--keep-meshes" => keep = true,
-            "--weights" => weights = Some(read_weights(&value(&mut it, a)?)?),
-            "--method" | "-o" | "--output" => return Err(usage(&format!("eval: {a} is not an eval option (see --methods, --out)"))),
-            s if reconstruct_option(s, &mut it, &mut base)? => {}
-            s if s.starts_with('-') => return Err(usage(&format!("eval: unknown option '{s}'"))),
-            s if dir.is_none() => dir = Some(s.to_string()),
-            s => return Err(usage(&format!("eval: unexpected argument '{s}'"))),
-        }
-    }
-    let dir = dir.ok_or_else(|| usage("eval needs a directory of NAME.obj and NAME-SIZE.ply files"))?;
+    let names = |s: &str| -> Vec<String> { s.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect() };
+    let p = parsed("eval", args, Settings::default())?;
+    let dir = one_operand(&p, "eval needs a directory of NAME.obj and NAME-SIZE.ply files")?;
+    let sizes = names(p.value("--sizes").unwrap_or("3k,10k"));
+    let methods = names(p.value("--methods").unwrap_or("network,nkrr"));
+    let shapes = p.value("--shapes").map(names);
+    let out = p.value("--out").unwrap_or("eval").to_string();
+    let keep = p.has("--keep-meshes");
+    let weights = p.value("--weights").map(read_weights).transpose()?;
+    let base = p.settings;
     if sizes.is_empty() || methods.is_empty() {
         return Err(usage("eval: --sizes and --methods need at least one entry"));
     }
