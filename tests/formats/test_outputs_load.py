@@ -156,7 +156,9 @@ def coloured(binary, cloud, tmp_path_factory) -> dict[str, Path]:
     write_coloured_ply(ply, cloud, colour_formula(cloud, lo, hi).astype(np.uint8))
     out = {}
     for f in ("glb", "ply"):
-        out[f] = d / f"spot-rgb.{f}"
+        # Not spot-rgb.ply: that is the input, which nkrr refuses to overwrite (the mesh once
+        # replaced the cloud here without a word).
+        out[f] = d / f"spot-rgb-mesh.{f}"
         reconstruct(ply, out[f])
     return out
 
