@@ -4,8 +4,8 @@
 //! of each result's bits, so that two runs with other thread counts show whether the result
 //! depends on them:
 //!
-//!     NKRR_THREADS=1 cargo run --release --example linalg_vs_faer -- 1
-//!     NKRR_THREADS=2 cargo run --release --example linalg_vs_faer -- 2
+//!     NKRR_THREADS=1 cargo run --release --features faer-bench --example linalg_vs_faer -- 1
+//!     NKRR_THREADS=2 cargo run --release --features faer-bench --example linalg_vs_faer -- 2
 //!
 //! The argument is faer's thread count (1: sequential); NKRR_THREADS is ours.
 
