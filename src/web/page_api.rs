@@ -65,7 +65,7 @@ pub fn mesh_file(
 pub fn tuning_step_ms(m: usize, reps: usize) -> Result<f64, JsError> {
     // m within the settings table's range, refused outside it (not quietly clamped).
     let def = crate::settings::by_key("m").expect("the table has m");
-    def.parse(&m.to_string()).map_err(|e| JsError::new(&format!("tuning_step_ms: {e}")))?;
+    def.check(Value::Num(m as f64)).map_err(|e| JsError::new(&format!("tuning_step_ms: {e}")))?;
     Ok(1e3 * crate::krr::mm::algebra_step_seconds(m, 32, reps))
 }
 

@@ -24,8 +24,11 @@ pub struct Flag {
     pub names: &'static [&'static str],
     /// The value's placeholder (None: a switch).
     pub value: Option<&'static str>,
-    /// What it does (and its default, in brackets).
+    /// What it does.
     pub help: &'static str,
+    /// The value when the flag is not given: what [`Parsed::value`] returns then, and what the
+    /// usage shows in brackets (the one place for it).
+    pub default: Option<&'static str>,
     /// When set, the flag is refused with this reason: a setting that another flag of the
     /// command replaces (`eval --method`: see `--methods`).
     pub refused: Option<&'static str>,
@@ -75,6 +78,7 @@ pub static FLAGS: &[Flag] = &[
         names: &["-o", "--output"],
         value: Some("OUT.glb|.ply|.obj|.stl"),
         help: "the mesh file to write (never the input)",
+        default: None,
         refused: None,
     },
     Flag {
@@ -82,52 +86,59 @@ pub static FLAGS: &[Flag] = &[
         names: &["--weights"],
         value: Some("PRIOR.safetensors"),
         help: "a network prior in the built-in one's format (one exported by training/export.py) instead of the built-in one",
+        default: None,
         refused: None,
     },
     Flag {
         commands: &["metrics"],
         names: &["--seed"],
         value: Some("N"),
-        help: "other samples, to see the sampling noise  [1]",
+        help: "another seed of the protocol's samples, to see the sampling noise (nkrr::eval::Protocol's otherwise)",
+        default: None,
         refused: None,
     },
     Flag {
         commands: &["eval"],
         names: &["--sizes"],
         value: Some("3k,10k"),
-        help: "the cloud sizes: DIR/NAME-SIZE.ply for each  [3k,10k]",
+        help: "the cloud sizes: DIR/NAME-SIZE.ply for each",
+        default: Some("3k,10k"),
         refused: None,
     },
     Flag {
         commands: &["eval"],
         names: &["--methods"],
         value: Some("network,nkrr"),
-        help: "the methods to compare (see METHODS below)  [network,nkrr]",
+        help: "the methods to compare (see METHODS below)",
+        default: Some("network,nkrr"),
         refused: None,
     },
-    Flag { commands: &["eval"], names: &["--shapes"], value: Some("A,B"), help: "only these NAMEs  [all]", refused: None },
-    Flag { commands: &["eval"], names: &["--out"], value: Some("PREFIX"), help: "where the reports go  [eval]", refused: None },
+    Flag { commands: &["eval"], names: &["--shapes"], value: Some("A,B"), help: "only these NAMEs (all when not given)", default: None, refused: None },
+    Flag { commands: &["eval"], names: &["--out"], value: Some("PREFIX"), help: "where the reports go", default: Some("eval"), refused: None },
     Flag {
         commands: &["eval"],
         names: &["--keep-meshes"],
         value: None,
         help: "also write PREFIX-NAME-SIZE-METHOD.glb",
+        default: None,
         refused: None,
     },
-    Flag { commands: &["eval"], names: &["--method"], value: None, help: "", refused: Some(NOT_FOR_EVAL) },
-    Flag { commands: &["eval"], names: &["-o", "--output"], value: None, help: "", refused: Some(NOT_FOR_EVAL) },
+    Flag { commands: &["eval"], names: &["--method"], value: None, help: "", default: None, refused: Some(NOT_FOR_EVAL) },
+    Flag { commands: &["eval"], names: &["-o", "--output"], value: None, help: "", default: None, refused: Some(NOT_FOR_EVAL) },
     Flag {
         commands: &["bench"],
         names: &["--sizes"],
         value: Some("3000,10000,50000"),
-        help: "cloud sizes of the torus  [3000,10000,50000]",
+        help: "cloud sizes of the torus",
+        default: Some("3000,10000,50000"),
         refused: None,
     },
     Flag {
         commands: &["bench"],
         names: &["--ms"],
         value: Some("500,1000"),
-        help: "inducing points, each within --m's range  [500,1000]",
+        help: "inducing points, each within --m's range",
+        default: Some("500,1000"),
         refused: None,
     },
 ];
@@ -135,21 +146,29 @@ pub static FLAGS: &[Flag] = &[
 /// A command line read by the tables: operands, the command's own flags, the settings.
 #[derive(Debug)]
 pub struct Parsed {
+    command: String,
     pub operands: Vec<String>,
     values: Vec<(&'static str, String)>,
     pub settings: Settings,
 }
 
 impl Parsed {
-    /// The last value given for the flag named `name` (its first name in [`FLAGS`]).
+    /// The last value given for the flag named `name` (its first name in [`FLAGS`]), else its
+    /// default.
     pub fn value(&self, name: &str) -> Option<&str> {
-        self.values.iter().rev().find(|(n, _)| *n == name).map(|(_, v)| v.as_str())
+        let given = self.values.iter().rev().find(|(n, _)| *n == name).map(|(_, v)| v.as_str());
+        given.or_else(|| flag(&self.command, name).and_then(|f| f.default))
     }
 
     /// Whether the switch or flag named `name` was given.
     pub fn has(&self, name: &str) -> bool {
         self.values.iter().any(|(n, _)| *n == name)
     }
+}
+
+/// The flag of `command` whose first name is `name`.
+fn flag(command: &str, name: &str) -> Option<&'static Flag> {
+    FLAGS.iter().find(|f| f.commands.contains(&command) && f.names[0] == name)
 }
 
 /// Reads `args` (after the command's name) for `command`, starting from `settings`. An error is
@@ -192,7 +211,7 @@ pub fn parse(command: &str, args: &[String], mut settings: Settings) -> Result<P
         }
         operands.push(a.to_string());
     }
-    Ok(Parsed { operands, values, settings })
+    Ok(Parsed { command: command.to_string(), operands, values, settings })
 }
 
 /// `text` broken at spaces into lines of at most `width` characters, every line after the first
@@ -235,7 +254,11 @@ pub fn usage() -> String {
             };
             // A long head puts its help on the next line, in the help column.
             let gap = if head.len() > 26 { format!("\n{}", " ".repeat(35)) } else { format!("{:1$}", "", 27 - head.len()) };
-            out += &format!("        {head}{gap}{}\n", wrapped(f.help, 35, 96));
+            let help = match f.default {
+                Some(d) => format!("{}  [{d}]", f.help),
+                None => f.help.to_string(),
+            };
+            out += &format!("        {head}{gap}{}\n", wrapped(&help, 35, 96));
         }
         if c.settings {
             let refused: Vec<&str> = FLAGS.iter().filter(|f| f.commands.contains(&c.name) && f.refused.is_some()).flat_map(|f| f.names.iter().copied()).collect();
@@ -289,6 +312,9 @@ mod tests {
         assert!(parse("metrics", &args(&["--m", "5"]), Settings::default()).unwrap_err().contains("unknown option '--m'"));
         assert!(parse("eval", &args(&["d", "--method", "nkrr"]), Settings::default()).unwrap_err().contains("not an eval option"));
         let p = parse("eval", &args(&["d", "--keep-meshes", "--sizes", "3k"]), Settings::default()).unwrap();
-        assert!(p.has("--keep-meshes") && p.value("--sizes") == Some("3k") && p.value("--out").is_none());
+        assert!(p.has("--keep-meshes") && p.value("--sizes") == Some("3k"));
+        // Not given: the table's default, which the usage shows.
+        assert_eq!((p.value("--out"), p.value("--shapes"), p.has("--out")), (Some("eval"), None, false));
+        assert!(usage().contains("where the reports go  [eval]"));
     }
 }

@@ -8,11 +8,6 @@ use args::Parsed;
 
 mod args;
 
-/// The usage text, made from the command and flag tables (`args.rs`) and the settings table.
-fn usage_text() -> String {
-    args::usage()
-}
-
 /// `s` with control characters shown escaped (`\x1b`, `\u{9b}`), except newline and tab:
 /// names, comments and messages that come from a file reach a terminal, and a raw ESC or BEL
 /// there can clear it, set its title or fake output. Every line the CLI prints goes through it.
@@ -70,7 +65,7 @@ fn main() -> ExitCode {
         Some("eval") => eval(&args[1..]),
         Some("gpu") => gpu(),
         Some("-h" | "--help" | "help") => {
-            print!("{}", usage_text());
+            print!("{}", args::usage());
             Ok(())
         }
         Some("-V" | "--version") => {
@@ -122,7 +117,7 @@ struct Failure {
 }
 
 fn usage(what: &str) -> Failure {
-    Failure { message: format!("{what}\n\n{}", usage_text()), code: 2 }
+    Failure { message: format!("{what}\n\n{}", args::usage()), code: 2 }
 }
 
 fn fail(message: String) -> Failure {
@@ -241,9 +236,8 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     let p = parsed("reconstruct", args, Settings::default())?;
     let input = one_operand(&p, "reconstruct needs an input cloud")?;
     let weights = p.value("--weights").map(read_weights).transpose()?;
-    let output = p.value("-o").map(str::to_string);
+    let output = p.value("-o").ok_or_else(|| usage("reconstruct needs -o OUT.glb"))?.to_string();
     let settings = p.settings;
-    let output = output.ok_or_else(|| usage("reconstruct needs -o OUT.glb"))?;
     use nkrr::io::mesh_out::{self, MeshFormat};
     let format = MeshFormat::from_path(&output)
         .ok_or_else(|| usage(&format!("-o {output}: the extension must be .glb, .ply, .obj or .stl")))?;
@@ -401,12 +395,12 @@ fn bench(args: &[String]) -> Result<(), Failure> {
     if let Some(extra) = p.operands.first() {
         return Err(usage(&format!("bench: unexpected argument '{extra}'")));
     }
-    let sizes = p.value("--sizes").map_or(Ok(vec![3000, 10000, 50000]), |v| list(v, "--sizes"))?;
-    let mut ms = p.value("--ms").map_or(Ok(vec![500, 1000]), |v| list(v, "--ms"))?;
+    let sizes = list(p.value("--sizes").expect("a default"), "--sizes")?;
+    let mut ms = list(p.value("--ms").expect("a default"), "--ms")?;
     // Each m within the settings table's range, as --m is.
     let def = nkrr::settings::by_key("m").expect("the table has m");
-    for m in &ms {
-        def.parse(&m.to_string()).map_err(|e| usage(&format!("--ms: {e}")))?;
+    for &m in &ms {
+        def.check(nkrr::settings::Value::Num(m as f64)).map_err(|e| usage(&format!("--ms: {e}")))?;
     }
     let settings = p.settings;
     let gpu = nkrr::gpu::Gpu::new_blocking().map_err(|e| fail(e.to_string()))?;
@@ -549,10 +543,10 @@ fn eval(args: &[String]) -> Result<(), Failure> {
     let names = |s: &str| -> Vec<String> { s.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect() };
     let p = parsed("eval", args, Settings::default())?;
     let dir = one_operand(&p, "eval needs a directory of NAME.obj and NAME-SIZE.ply files")?;
-    let sizes = names(p.value("--sizes").unwrap_or("3k,10k"));
-    let methods = names(p.value("--methods").unwrap_or("network,nkrr"));
+    let sizes = names(p.value("--sizes").expect("a default"));
+    let methods = names(p.value("--methods").expect("a default"));
     let shapes = p.value("--shapes").map(names);
-    let out = p.value("--out").unwrap_or("eval").to_string();
+    let out = p.value("--out").expect("a default").to_string();
     let keep = p.has("--keep-meshes");
     let weights = p.value("--weights").map(read_weights).transpose()?;
     let base = p.settings;
