@@ -268,6 +268,16 @@ fn stratified(rows: &[usize], inputs: usize, keep: usize, seed: u64) -> Vec<usiz
     out
 }
 
+/// Most pairs held out under `settings`: [`HELD_OUT_MAX`] to select by them, none otherwise.
+fn held_out_max(settings: &Settings) -> usize {
+    if settings.select_by == SelectBy::HeldOut { HELD_OUT_MAX } else { 0 }
+}
+
+/// Pairs held out of `n` when at most `most` are asked for: at most a fifth of them.
+fn held_count(n: usize, most: usize) -> usize {
+    most.min(n / 5)
+}
+
 /// Which of `n` training pairs (the first `inputs` of them the input points) the tuning sees and
 /// which score its iterates.
 #[derive(Clone, Debug, PartialEq)]
@@ -287,7 +297,7 @@ pub struct RowSplit {
 /// with n. β, which has to reach every point, is then solved once on all pairs.
 pub fn split_rows(n: usize, inputs: usize, keep: Option<usize>, held: usize, seed: u64) -> RowSplit {
     let all: Vec<usize> = (0..n).collect();
-    let held = stratified(&all, inputs, held.min(n / 5), seed);
+    let held = stratified(&all, inputs, held_count(n, held), seed);
     let rest: Vec<usize> = if held.is_empty() {
         all
     } else {
@@ -316,8 +326,7 @@ pub struct Regression {
 /// The inducing points are drawn from these rows, so m cannot exceed it (see
 /// [`crate::plan::inducing_points`], which decides m).
 pub fn tuning_rows(pairs: usize, settings: &Settings) -> usize {
-    let held = if settings.select_by == SelectBy::HeldOut { HELD_OUT_MAX.min(pairs / 5) } else { 0 };
-    let rest = pairs - held;
+    let rest = pairs - held_count(pairs, held_out_max(settings));
     settings.tune_pairs.map_or(rest, |k| k.min(rest))
 }
 
@@ -337,7 +346,7 @@ pub async fn fit(
     let Regression { m, on_gpu } = regression;
     debug_assert_eq!(settings.method, Method::Nkrr);
     let all = &pairs.problem;
-    let held = if settings.select_by == SelectBy::HeldOut { HELD_OUT_MAX } else { 0 };
+    let held = held_out_max(settings);
     let split = split_rows(all.n(), pairs.inputs, settings.tune_pairs, held, 5);
     let subset = split.tune.as_ref().map(|rows| all.select(rows));
     let validation = (!split.held.is_empty()).then(|| all.select(&split.held));

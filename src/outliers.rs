@@ -55,7 +55,7 @@ pub const LARGE_SHARE: f64 = 0.2;
 
 /// A warning when the filter dropped more than [`LARGE_SHARE`] of the `total` points, with the
 /// count and how to keep them; None otherwise (then [`notice`] says what went).
-pub fn warning(dropped: usize, total: usize, ratio: f32) -> Option<String> {
+fn warning(dropped: usize, total: usize, ratio: f32) -> Option<String> {
     (dropped as f64 > LARGE_SHARE * total as f64).then(|| {
         format!(
             "the stray-point filter dropped {dropped} of {total} points ({:.0} %), far more than stray points usually are: \
@@ -66,7 +66,7 @@ pub fn warning(dropped: usize, total: usize, ratio: f32) -> Option<String> {
 }
 
 /// What the reconstruction tells the user when `dropped` points went (nothing when none did).
-pub fn notice(dropped: usize, ratio: f32) -> Option<String> {
+fn notice(dropped: usize, ratio: f32) -> Option<String> {
     (dropped > 0).then(|| {
         format!(
             "dropped {dropped} stray points (their mean distance to their {NEIGHBOURS} nearest neighbours is more than {ratio} times that of the points around them)"

@@ -91,8 +91,7 @@ pub struct MemoryPlan {
 /// sentence that says so. The one place m is decided from the pairs: the preflight calls it
 /// with the planned points, the pipeline again with the points the stray-point filter kept.
 pub fn inducing_points(settings: &Settings, m: usize, points: usize) -> (usize, Option<String>) {
-    let pairs = points * (1 + settings.extra_per_point(points));
-    let rows = crate::field::tuning_rows(pairs, settings).max(1);
+    let rows = crate::field::tuning_rows(settings.training_pairs(points), settings).max(1);
     if m <= rows {
         return (m, None);
     }
@@ -209,7 +208,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         }
     }
     let per_point = settings.extra_per_point(n as usize) as u64;
-    let np = (1 + per_point) * n;
+    let np = settings.training_pairs(n as usize) as u64;
     let mut decisions = Vec::new();
     if nkrr {
         let (fit, why) = inducing_points(settings, m as usize, n as usize);

@@ -120,6 +120,11 @@ impl Settings {
     pub fn extra_per_point(&self, n: usize) -> usize {
         self.offsets(n).per_point + if self.across.is_some() { 2 } else { 0 }
     }
+
+    /// Training pairs for `n` input points: each point and its [`Settings::extra_per_point`].
+    pub fn training_pairs(&self, n: usize) -> usize {
+        n * (1 + self.extra_per_point(n))
+    }
 }
 
 impl Default for Settings {
@@ -876,7 +881,8 @@ pub struct Unused {
 }
 
 impl Unused {
-    /// In the CLI's words: "--m 1000 has no effect: it needs --method nkrr".
+    /// In the CLI's words: "--m 1000 has no effect and is ignored: it needs the nkrr method
+    /// (--method nkrr)".
     pub fn cli(&self) -> String {
         let value = match self.setting.kind {
             Kind::Switch => String::new(),

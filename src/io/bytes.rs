@@ -1,4 +1,5 @@
-//! Little-endian integers read from binary headers (LAS, E57), shared by their readers.
+//! What the readers share of reading bytes: little-endian integers from binary headers (LAS,
+//! E57), and line endings in text (PLY's ascii body, text clouds).
 
 /// Little-endian integers at byte `at` of a binary header (the caller has checked the length),
 /// widened to u64.
@@ -12,4 +13,15 @@ pub(crate) fn u64_at(b: &[u8], at: usize) -> u64 {
     let mut v = [0; 8];
     v.copy_from_slice(&b[at..at + 8]);
     u64::from_le_bytes(v)
+}
+
+/// Whether `b[i]` ends a line: LF, or a CR not followed by LF (CRLF ends at its LF; classic
+/// Mac OS ends lines with a lone CR).
+pub(crate) fn ends_line(b: &[u8], i: usize) -> bool {
+    b[i] == b'\n' || (b[i] == b'\r' && b.get(i + 1) != Some(&b'\n'))
+}
+
+/// The 1-based line that the byte after `before` is on, line endings as [`ends_line`] has them.
+pub(crate) fn line_of(before: &[u8]) -> usize {
+    1 + (0..before.len()).filter(|&i| ends_line(before, i)).count()
 }

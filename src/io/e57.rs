@@ -76,12 +76,13 @@ fn bits(t: &::e57::RecordDataType) -> u64 {
 /// bytes, so fields of under 8 bits leave room for up to 7 records more than were written:
 /// those no count can tell from real ones.
 fn records_held(b: &[u8], scan: &::e57::PointCloud) -> Option<u64> {
-    let physical = |p: u64| (p % PAGE < PAGE_DATA).then(|| p / PAGE * PAGE_DATA + p % PAGE);
-    let start = physical(scan.file_offset)?;
+    // A physical offset (as the file's offsets are) to a logical one (checksums skipped).
+    let logical = |p: u64| (p % PAGE < PAGE_DATA).then(|| p / PAGE * PAGE_DATA + p % PAGE);
+    let start = logical(scan.file_offset)?;
     let header = logical_bytes::<32>(b, start)?;
     let section_length = u64::from_le_bytes(header[8..16].try_into().ok()?);
     let end = start.checked_add(section_length)?;
-    let mut at = physical(u64::from_le_bytes(header[16..24].try_into().ok()?))?;
+    let mut at = logical(u64::from_le_bytes(header[16..24].try_into().ok()?))?;
     let mut stream_bytes = vec![0u64; scan.prototype.len()];
     while at + 4 <= end {
         let [kind, _flags, lo, hi] = logical_bytes::<4>(b, at)?;

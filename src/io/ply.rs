@@ -39,6 +39,7 @@
 //! and that is an error ([`PlyError::AllNonFinite`]).
 
 use super::builder::{CloudBuilder, Pushed};
+use super::bytes::{ends_line, line_of};
 use crate::cloud::PointCloud;
 use std::fmt;
 
@@ -1002,16 +1003,6 @@ impl<const BE: bool> Source for Binary<'_, BE> {
     }
 }
 
-/// Whether `b` at `i` ends a line: LF, or a CR not followed by LF (CRLF ends at its LF).
-fn ends_line(b: &[u8], i: usize) -> bool {
-    b[i] == b'\n' || (b[i] == b'\r' && b.get(i + 1) != Some(&b'\n'))
-}
-
-/// 1 + the line endings in `b` ([`ends_line`]).
-fn line_after(b: &[u8]) -> usize {
-    1 + (0..b.len()).filter(|&i| ends_line(b, i)).count()
-}
-
 struct Ascii<'a> {
     data: &'a [u8],
     pos: usize,
@@ -1023,7 +1014,7 @@ struct Ascii<'a> {
 
 impl<'a> Ascii<'a> {
     fn new(data: &'a [u8], body_offset: usize) -> Self {
-        let line = line_after(&data[..body_offset]);
+        let line = line_of(&data[..body_offset]);
         Ascii {
             data,
             pos: body_offset,
@@ -1143,7 +1134,7 @@ impl Source for Ascii<'_> {
             .count();
         (lines > 0).then(|| {
             let first = rest.iter().position(|b| !is_space(*b)).unwrap_or(0);
-            format!("{lines} more lines follow the last element, from line {}", line_after(&self.data[..self.pos + first]))
+            format!("{lines} more lines follow the last element, from line {}", line_of(&self.data[..self.pos + first]))
         })
     }
 }

@@ -26,6 +26,7 @@
 use std::fmt;
 
 use super::builder::{CloudBuilder, Pushed};
+use super::bytes::line_of;
 use super::scan_file::{ScanFile, ScanFormat};
 
 /// Why a text cloud could not be read; `line` is 1-based (0 when it is about the whole file).
@@ -375,20 +376,35 @@ impl<'a> Iterator for Lines<'a> {
     }
 }
 
+/// The decimals of the last value of the data lines read so far: one count on every line is a
+/// writer with a fixed format ("%.6f"), against which a last line with fewer looks cut; shortest
+/// round-trip writers give each value its own count, and then nothing can be told.
+#[derive(Clone, Copy)]
+enum Decimals {
+    Unseen,
+    /// Every line so far (`lines` of them) has `count` decimals.
+    Fixed { count: usize, lines: usize },
+    /// The counts differ, or a value has no decimal point.
+    Varied,
+}
+
+impl Decimals {
+    /// The state after one more data line whose last value has `d` decimals.
+    fn after(self, d: Option<usize>) -> Decimals {
+        match (self, d) {
+            (Decimals::Unseen, Some(count)) => Decimals::Fixed { count, lines: 1 },
+            (Decimals::Fixed { count, lines }, Some(d)) if d == count => Decimals::Fixed { count, lines: lines + 1 },
+            _ => Decimals::Varied,
+        }
+    }
+}
+
 /// Digits after the decimal point of the last field of `line` (None without one).
 fn last_decimals(line: &str, decimal_comma: bool) -> Option<usize> {
     let last = fields(line.trim(), decimal_comma).last()?;
     let mantissa = last.split(['e', 'E']).next().unwrap_or(last);
     let (_, frac) = mantissa.split_once(if decimal_comma { ',' } else { '.' })?;
     Some(frac.len())
-}
-
-/// The 1-based line that the byte after `before` is on, counting LF, CRLF and lone CR as
-/// [`Lines`] does.
-fn line_of(before: &[u8]) -> usize {
-    let lf = before.iter().filter(|&&b| b == b'\n').count();
-    let lone_cr = before.iter().enumerate().filter(|&(i, &b)| b == b'\r' && before.get(i + 1) != Some(&b'\n')).count();
-    lf + lone_cr + 1
 }
 
 /// Reads a text cloud.
@@ -505,11 +521,9 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
     out.reserve((text.len() / 6).min(1 << 22));
     let mut declared = 0u64;
     let mut notes = Vec::new();
-    // The decimals of the last value of every data line so far, while they agree (a writer with a
-    // fixed format, "%.6f"), to judge a last line that has no line ending; None once they differ
-    // (shortest round-trip writers give each value its own count).
-    let mut decimals: Option<Option<usize>> = None;
-    let mut data_lines = 0usize;
+    // The decimals of the data lines' last values so far, to judge a last line that has no line
+    // ending.
+    let mut decimals = Decimals::Unseen;
     let mut lines = Lines::new(text);
     while let Some((number, line)) = lines.next() {
         if number < first_data_line {
@@ -519,16 +533,16 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
         if lines.ended_open() {
             // A last line without a line ending may be a file cut while it was written: a
             // number cut short reads as a smaller, complete one. Left out where the line shows
-            // it (too few values, not a number, fewer decimals than the line before), else read
-            // and named.
+            // it (too few values, not a number, fewer decimals than every line before), else
+            // read and named.
             let shown: String = line.trim().chars().take(60).collect();
             let cut = match kind {
                 Line::Values(c) if c < columns => Some(format!("it has {c} of the {columns} values of a point")),
                 Line::Words | Line::BadDecimal(_) => Some("it does not end in a number".to_string()),
                 Line::Values(c) if c == columns => match (last_decimals(line, decimal_comma), decimals) {
-                    (Some(d), Some(Some(fixed))) if d < fixed && data_lines >= 2 => Some(format!(
-                        "its last value has {d} decimals where every line before has {fixed}"
-                    )),
+                    (Some(d), Decimals::Fixed { count, lines }) if d < count && lines >= 2 => {
+                        Some(format!("its last value has {d} decimals where every line before has {count}"))
+                    }
                     _ => None,
                 },
                 _ => None,
@@ -549,13 +563,7 @@ pub fn read_text(bytes: &[u8]) -> Result<ScanFile, TextError> {
             }
         }
         if matches!(kind, Line::Values(_)) {
-            let d = last_decimals(line, decimal_comma);
-            decimals = match decimals {
-                None => Some(d),
-                Some(Some(before)) if d == Some(before) => Some(d),
-                _ => Some(None),
-            };
-            data_lines += 1;
+            decimals = decimals.after(last_decimals(line, decimal_comma));
         }
         match kind {
             Line::Blank | Line::Comment(_) => {}

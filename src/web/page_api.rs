@@ -164,7 +164,7 @@ pub fn preflight(points: usize, colours: bool, options: JsValue, binding: f64, s
 #[wasm_bindgen]
 pub fn parse_setting(key: &str, text: &str) -> Result<JsValue, JsValue> {
     let def = settings::by_key(key).ok_or_else(|| error("RangeError", &format!("{key} is not a setting")))?;
-    let v = def.parse(text).and_then(|v| def.check(v)).map_err(|e| error("RangeError", &e))?;
+    let v = def.parse(text).map_err(|e| error("RangeError", &e))?;
     Ok(match (v, def.kind) {
         (Value::Off, Kind::Choice(_)) => JsValue::from_str(""),
         (Value::Off, _) => JsValue::NULL,
