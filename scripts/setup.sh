@@ -76,7 +76,7 @@ step_python() {
         log "python: creating .venv-formats"
         python3 -m venv .venv-formats
     fi
-    if ! .venv-formats/bin/python -c 'import laspy, lazrs, pye57, trimesh, pytest' 2>/dev/null; then
+    if ! .venv-formats/bin/python -c 'import laspy, lazrs, pye57, trimesh, pytest, skimage' 2>/dev/null; then
         log "python: installing the format fixtures' writers and trimesh"
         .venv-formats/bin/pip install -q --disable-pip-version-check \
             -r tests/fixtures/formats/requirements.txt -r tests/formats/requirements.txt

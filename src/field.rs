@@ -85,13 +85,27 @@ pub struct KrrField {
 
 impl KrrField {
     /// The field at `points`, whose network features and logits are `features` and `logits`:
-    /// g, or l + g when g regressed the logit's residual.
+    /// g, or l + g when g regressed the logit's residual. On the GPU this uploads the
+    /// coefficients for the call; [`Field::evaluator`] keeps them for many.
     pub async fn predict(&self, points: &[[f32; 3]], features: Vec<f32>, logits: &[f32]) -> Result<Vec<f32>, String> {
+        let prepared = self.prepare(points.len())?;
+        self.predict_with(prepared.as_ref(), points, features, logits).await
+    }
+
+    /// The GPU predictor with this fit's coefficients uploaded, for calls of up to `queries`
+    /// points (None when the fit runs on the CPU reference).
+    fn prepare(&self, queries: usize) -> Result<Option<krr::PreparedPredictor>, String> {
+        let Some(p) = &self.gpu else { return Ok(None) };
+        let prepared = p.prepare(&self.beta, &self.params.z, &self.params.log_s, queries).map_err(|e| e.to_string())?;
+        Ok(Some(prepared))
+    }
+
+    async fn predict_with(&self, prepared: Option<&krr::PreparedPredictor>, points: &[[f32; 3]], features: Vec<f32>, logits: &[f32]) -> Result<Vec<f32>, String> {
         let x = regression_input(self.euclidean, self.position, points, features);
-        let (beta, z, log_s) = (&self.beta, &self.params.z, &self.params.log_s);
-        let mut g = match &self.gpu {
-            Some(p) => p.predict(beta, z, log_s, &x).await.map_err(|e| e.to_string())?,
+        let mut g = match prepared {
+            Some(p) => p.predict(&x).await.map_err(|e| e.to_string())?,
             None => {
+                let (beta, z, log_s) = (&self.beta, &self.params.z, &self.params.log_s);
                 let x: Vec<f64> = x.iter().map(|&v| v as f64).collect();
                 krr::predict(beta, z, log_s, &x).map(|g| g.into_iter().map(|v| v as f32).collect()).map_err(|e| e.to_string())?
             }
@@ -103,6 +117,10 @@ impl KrrField {
     }
 }
 
+/// Points per call to an [`Evaluator`] while meshing: the buffers are sized for it (and the
+/// plan counts them so), and meshing progress is reported between calls.
+pub const EVALUATION_CHUNK: usize = 32_768;
+
 /// The field the mesher evaluates: the network alone, or the network's features through the
 /// fitted regression.
 pub enum Field {
@@ -111,12 +129,33 @@ pub enum Field {
 }
 
 impl Field {
-    /// The field at `points` (the unit cube), decoding their features from `planes`.
-    pub async fn evaluate(&self, net: &GpuNet, planes: &GpuPlanes, points: &[[f32; 3]]) -> Result<Vec<f32>, String> {
-        let (features, logits) = net.decode(planes, points).await.map_err(|e| e.to_string())?;
-        match self {
+    /// What evaluates the field on `planes` in calls of at most `queries` points (the unit
+    /// cube): the decoder's buffers and, for the regression on the GPU, the predictor's with
+    /// its coefficients, made here once for every call (the mesher makes hundreds).
+    pub fn evaluator<'a>(&'a self, net: &'a GpuNet, planes: &'a GpuPlanes, queries: usize) -> Result<Evaluator<'a>, String> {
+        let decoder = net.decoder(planes, queries).map_err(|e| e.to_string())?;
+        let predictor = match self {
+            Field::Network => None,
+            Field::Krr(fit) => fit.prepare(queries)?,
+        };
+        Ok(Evaluator { field: self, decoder, predictor })
+    }
+}
+
+/// A [`Field`] ready to evaluate ([`Field::evaluator`]).
+pub struct Evaluator<'a> {
+    field: &'a Field,
+    decoder: crate::net::Decoder<'a>,
+    predictor: Option<krr::PreparedPredictor>,
+}
+
+impl Evaluator<'_> {
+    /// The field at `points`, decoding their features from the planes.
+    pub async fn evaluate(&self, points: &[[f32; 3]]) -> Result<Vec<f32>, String> {
+        let (features, logits) = self.decoder.decode(points).await.map_err(|e| e.to_string())?;
+        match self.field {
             Field::Network => Ok(logits),
-            Field::Krr(fit) => fit.predict(points, features, &logits).await,
+            Field::Krr(fit) => fit.predict_with(self.predictor.as_ref(), points, features, &logits).await,
         }
     }
 }
@@ -393,8 +432,10 @@ pub async fn fit(
         let mut evaluations = objective.evaluations;
         let mut phases = objective.total_timings;
         let beta = if subset.is_some() && !matches!(result.stop, krr::StopReason::Cancelled) {
-            // One objective at a time on the device: the subset's buffers go before all pairs'.
+            // One objective at a time on the device: the subset's buffers go before all pairs'
+            // (natively the device frees them at its next poll, so poll before allocating).
             drop(objective);
+            gpu.poll_wait();
             objective = krr::GpuObjective::new(gpu, all, solve).await.map_err(KrrError::from)?;
             let (eval, _) = objective.evaluate(&result.params, false).await?;
             evaluations += objective.evaluations;

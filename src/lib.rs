@@ -22,6 +22,7 @@ pub mod pipeline;
 pub mod plan;
 pub mod rng;
 pub mod sample;
+pub mod scene;
 pub mod settings;
 pub mod units;
 

@@ -16,8 +16,6 @@ use crate::net::{GpuNet, NetError, Weights};
 use crate::plan::{DeviceFacts, MemoryPlan};
 use crate::settings::{Method, Settings};
 
-/// Field evaluations between two meshing progress reports.
-const MESHING_PROGRESS_CHUNK: usize = 32_768;
 
 /// A stage of the pipeline, as reported to the progress callback.
 #[derive(Clone, Debug, PartialEq)]
@@ -30,6 +28,8 @@ pub enum Stage {
     /// Field evaluations made so far while meshing, and about how many it will take
     /// ([`crate::mesh::refine::MeshingSize::expected`]: a typical count, which a run may pass).
     Meshing { evaluated: usize, expected: usize },
+    /// A scene's tiles ([`crate::scene`]): `done` of `of` reconstructed.
+    Tile { done: usize, of: usize },
     Done,
 }
 
@@ -108,6 +108,10 @@ pub struct Reconstruction {
     pub tuning: Option<TuningSummary>,
     /// (stage, seconds).
     pub timings: Vec<(&'static str, f64)>,
+    /// (stage, bytes): the most buffer memory each stage held on the device beyond what the
+    /// engine held before the reconstruction, named as the plan names its stages; empty where
+    /// the device does not count its memory (see [`crate::gpu::ledger`]).
+    pub gpu_peaks: Vec<(&'static str, u64)>,
 }
 
 impl Reconstruction {
@@ -188,10 +192,12 @@ impl Engine {
         if !progress(&Stage::Features) {
             return Err(PipelineError::Cancelled);
         }
+        let mut peaks = crate::gpu::StagePeaks::start(&self.gpu);
         let t = now();
         let planes = self.net.encode(&points).await?;
         self.net.wait();
         timings.push(("features", now() - t));
+        peaks.end("features");
 
         let mut tuning = None;
         let field = if settings.method == Method::Nkrr {
@@ -201,6 +207,7 @@ impl Engine {
             let t = now();
             let pairs = field::training_pairs(&self.net, &planes, &points, settings).await?;
             timings.push(("pairs", now() - t));
+            peaks.end("pairs");
             let t = now();
             let mut report = |step: usize, loss: f64| progress(&Stage::Tuning { step, of: settings.steps, loss });
             // The plan's regression, for the points the stray-point filter kept (fewer pairs).
@@ -208,6 +215,7 @@ impl Engine {
             notices.extend(fewer);
             let (fit, summary) = field::fit(&self.gpu, &pairs, settings, regression, &mut report).await?;
             timings.push(("tuning", now() - t));
+            peaks.end("tuning");
             tuning = Some(summary);
             Field::Krr(fit)
         } else {
@@ -219,7 +227,8 @@ impl Engine {
         let evaluated = RefCell::new(0usize);
         let cancelled = RefCell::new(false);
         let progress = RefCell::new(progress);
-        let (net, planes, field) = (&self.net, &planes, &field);
+        // Made once for the whole extraction: the decoder's and the predictor's buffers.
+        let evaluator = &field.evaluator(&self.net, &planes, field::EVALUATION_CHUNK).map_err(|e| PipelineError::Mesh(ExtractError::Field(FieldError(e))))?;
         // A refinement batch can hold a third of all evaluations: evaluated in chunks, with the
         // evaluations done so far told before each, the bar moves with the work instead of
         // jumping ahead of it.
@@ -228,12 +237,12 @@ impl Engine {
             let (evaluated, cancelled, progress) = (&evaluated, &cancelled, &progress);
             async move {
                 let mut values = Vec::with_capacity(pts.len());
-                for chunk in pts.chunks(MESHING_PROGRESS_CHUNK) {
+                for chunk in pts.chunks(field::EVALUATION_CHUNK) {
                     if !(progress.borrow_mut())(&Stage::Meshing { evaluated: *evaluated.borrow(), expected }) {
                         *cancelled.borrow_mut() = true;
                         return Err(FieldError("cancelled".into()));
                     }
-                    values.extend(field.evaluate(net, planes, chunk).await.map_err(FieldError)?);
+                    values.extend(evaluator.evaluate(chunk).await.map_err(FieldError)?);
                     *evaluated.borrow_mut() += chunk.len();
                 }
                 Ok(values)
@@ -245,41 +254,15 @@ impl Engine {
         }
         let extraction = extraction.map_err(PipelineError::Mesh)?;
         timings.push(("mesh", now() - t));
+        peaks.end("meshing");
         if extraction.mesh.indices.is_empty() {
             let r = &extraction.stats.refine;
             return Err(PipelineError::NoSurface { evaluations: r.evaluations, field_max: r.field_max, method: settings.method });
         }
 
         let mut mesh = extraction.mesh;
-        if let Some(share) = settings.min_support {
-            let r = crate::mesh::remove_unsupported_components(&mut mesh, &points, share as f32);
-            notices.extend(r.unsupported_notice(share));
-        }
         // Fitted and trimmed in the unit cube, against the points the network saw.
-        let fit = settings.fit.then(|| {
-            let t = now();
-            let r = crate::mesh::fit::fit_cloud(&mut mesh, &points, settings.fit_noise);
-            timings.push(("fit", now() - t));
-            notices.extend(r.notice());
-            r
-        });
-        let trim = settings.trim.map(|factor| {
-            let t = now();
-            let r = crate::mesh::trim(&mut mesh, &points, factor);
-            timings.push(("trim", now() - t));
-            notices.push(r.notice(factor));
-            r
-        });
-        // After the trim, so that the simplifier keeps the trimmed border where it is; before
-        // the colours, which then go to the vertices that are left.
-        let target = crate::mesh::simplify::Target { triangles: settings.triangles, max_error: settings.max_error };
-        let simplify = (target != Default::default()).then(|| {
-            let t = now();
-            let r = crate::mesh::simplify::simplify(&mut mesh, &target);
-            timings.push(("simplify", now() - t));
-            notices.push(r.notice());
-            r
-        });
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, &mut notices, &mut timings);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }
@@ -292,6 +275,7 @@ impl Engine {
         // normalisation makes the scale irrelevant to it), and a similarity keeps normals.
         let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
         (progress.borrow_mut())(&Stage::Done);
-        Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings })
+        let crate::mesh::finish::Finished { fit, trim, simplify } = finished;
+        Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks })
     }
 }

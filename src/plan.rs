@@ -239,25 +239,21 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     // Meshing: the refine batches (the first is the coarse grid) and their decoded features on
     // the host; on the GPU the chunked decode and predict, then the tiled marching cubes.
     let size = MeshingSize::at(settings.resolution);
-    let decode = net_gpu::decode_footprint(cfg, b, size.batch);
-    let field = if nkrr {
-        let cd = net_gpu::decode_chunk(cfg, b, size.batch);
+    // The field is evaluated in calls of at most this many points, by one evaluator whose
+    // decoder and predictor are sized for them.
+    let queries = size.batch.min(crate::field::EVALUATION_CHUNK as u64);
+    let decode = net_gpu::decode_footprint(cfg, b, queries);
+    let field = match (nkrr, krr_on_gpu) {
+        (true, true) => krr_gpu::predict_footprint(m, d, queries.min(krr_gpu::PREDICT_CHUNK as u64)),
         // The CPU predictor (nkrr with the f64 objective) widens each batch's features to f64.
-        let host = if krr_on_gpu { 0 } else { reference::predict_host_bytes(size.batch, d) + reference::predict_block_bytes(m, d) };
-        krr_gpu::predict_footprint(m, d, cd).and(Footprint::host(host))
-    } else {
-        Footprint::default()
+        (true, false) => Footprint::host(reference::predict_host_bytes(size.batch, d) + reference::predict_block_bytes(m, d)),
+        (false, _) => Footprint::default(),
     };
     let evaluate = decode.and(field).and(Footprint::host(size.batch * 4 * c + size.host_bytes()));
+    // The evaluator's buffers (made once for the extraction) are still held while the marching
+    // cubes run.
     let polygonize = marching_cubes_gpu::footprint(size.active, b);
-    stages.push(stage(
-        "meshing",
-        planes.and(Footprint {
-            gpu: evaluate.gpu.max(polygonize.gpu),
-            largest: evaluate.largest.max(polygonize.largest),
-            host: evaluate.host,
-        }),
-    ));
+    stages.push(stage("meshing", planes.and(evaluate).and(polygonize)));
     if settings.fit || settings.trim.is_some() || (colours && settings.colors) {
         let mut host = 12 * size.triangles + 12 * size.active;
         // The fit and the trim each index the points (and their neighbour lists).

@@ -59,6 +59,15 @@ pub enum PriorMean {
     Zero,
 }
 
+/// Whether a cloud is reconstructed in tiles ([`crate::scene`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Tiles {
+    /// Tiles when the cloud spans a scene ([`crate::scene::SCENE_EXTENT_M`] or more).
+    Auto,
+    On,
+    Off,
+}
+
 /// Which of the tuning's iterates is kept.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SelectBy {
@@ -103,6 +112,8 @@ pub struct Settings {
     pub fit_noise: bool,
     pub colors: bool,
     pub units: Option<Units>,
+    pub tiles: Tiles,
+    pub detail: Option<f32>,
 }
 
 impl Settings {
@@ -163,6 +174,8 @@ impl Default for Settings {
             fit_noise: false,
             colors: false,
             units: None,
+            tiles: Tiles::Auto,
+            detail: None,
         };
         for def in TABLE {
             (def.set)(&mut s, def.default);
@@ -463,6 +476,40 @@ pub static TABLE: &[Setting] = &[
         default: Value::Off,
         get: |s| s.units.map_or(Value::Off, |u| Value::Choice(u.code())),
         set: |s, v| s.units = choice(v).parse().ok(),
+        ..BASE
+    },
+    Setting {
+        key: "tiles",
+        flag: "--tiles",
+        label: "Scene tiles",
+        help: "reconstruct in overlapping tiles of about an object's worth of points, blended into one mesh (auto: when the cloud spans 2.5 m or more, in metres per --units)",
+        kind: Kind::Choice(&[("auto", "auto"), ("on", "on"), ("off", "off (one object)")]),
+        default: Value::Choice("auto"),
+        get: |s| Value::Choice(match s.tiles {
+            Tiles::Auto => "auto",
+            Tiles::On => "on",
+            Tiles::Off => "off",
+        }),
+        set: |s, v| {
+            s.tiles = match choice(v) {
+                "on" => Tiles::On,
+                "off" => Tiles::Off,
+                _ => Tiles::Auto,
+            }
+        },
+        ..BASE
+    },
+    Setting {
+        key: "detail",
+        flag: "--detail",
+        label: "Scene detail (m)",
+        help: "the mesh cell of a tiled scene, in metres (a tile is 64 cells); off follows the scan's density",
+        kind: Kind::Float { min: 0.0005, max: 10.0 },
+        default: Value::Off,
+        can_be_off: true,
+        advanced: true,
+        get: |s| from_opt(s.detail),
+        set: |s, v| s.detail = opt_f32(v),
         ..BASE
     },
     Setting {

@@ -167,8 +167,8 @@ const reconstructor = new Reconstructor({ graceMs: CANCEL_GRACE_MS });
 // Shares of the overall bar per stage, by method. Meshing has no known end: its share fills as
 // field evaluations approach the typical count the event carries (MeshingSize::expected).
 const SHARES = {
-  network: { features: [0, 0.15], meshing: [0.15, 0.98] },
-  nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], meshing: [0.7, 0.98] },
+  network: { features: [0, 0.15], meshing: [0.15, 0.98], tiles: [0, 0.98] },
+  nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], meshing: [0.7, 0.98], tiles: [0, 0.98] },
 };
 
 function stageText(p, opts) {
@@ -178,6 +178,7 @@ function stageText(p, opts) {
     case 'pairs': return 'Sampling and labelling training pairs…';
     case 'tuning': return `Tuning: step ${p.step} of ${p.of}, loss ${p.loss.toPrecision(4)}`;
     case 'meshing': return `Meshing at ${opts.resolution}³: ${fmt.format(p.evaluated)} field evaluations`;
+    case 'tiles': return `Scene: tile ${fmt.format(p.done)} of ${fmt.format(p.of)}`;
     case 'done': return 'Writing the GLB…';
     default: return p.stage;
   }
@@ -191,6 +192,7 @@ function onProgress(p) {
     let within = 0;
     if (p.stage === 'tuning') within = p.of ? p.step / p.of : 1;
     if (p.stage === 'meshing') within = Math.min(1, p.evaluated / Math.max(1, p.expected));
+    if (p.stage === 'tiles') within = p.of ? p.done / p.of : 1;
     f = share[0] + (share[1] - share[0]) * within;
   } else if (p.stage === 'done') {
     f = 0.99;

@@ -15,9 +15,11 @@
 
 pub mod clock;
 pub mod footprint;
+pub mod ledger;
 
 pub use clock::now;
 pub use footprint::Footprint;
+pub use ledger::{Allocations, Ledger};
 
 use std::fmt;
 use std::future::Future;
@@ -65,6 +67,8 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
     pub limits: wgpu::Limits,
+    /// What has been allocated through this handle and its clones ([`ledger`]).
+    pub ledger: Arc<Ledger>,
 }
 
 /// The largest buffer a shader may bind under `limits`: both the storage-binding and the
@@ -111,7 +115,40 @@ impl Gpu {
             })
             .await
             .map_err(|e| GpuError::Device(e.to_string()))?;
-        Ok(Gpu { adapter, device, queue, info, limits })
+        let gpu = Gpu { adapter, device, queue, info, limits, ledger: Arc::default() };
+        // Whether the device counts its buffer memory (wgpu's `counters` feature, on in the test
+        // build): a 4-byte probe either shows up in the count or the count stays 0.
+        let probe = gpu.storage::<u32>("ledger probe", 1)?;
+        gpu.ledger.set_counted(gpu.device_live_bytes() > 0);
+        drop(probe);
+        Ok(gpu)
+    }
+
+    /// Buffer memory the device holds now, as it counts it (0 when it does not count).
+    fn device_live_bytes(&self) -> i64 {
+        self.device.get_internal_counters().hal.buffer_memory.read() as i64
+    }
+
+    /// Buffer memory the device holds now, when it counts it ([`ledger`]).
+    pub fn live_bytes(&self) -> Option<u64> {
+        self.ledger.counted().then(|| self.device_live_bytes().max(0) as u64)
+    }
+
+    /// What has been created so far, and the peak of live memory since [`Gpu::begin_peak`].
+    pub fn allocations(&self) -> Allocations {
+        self.ledger.snapshot()
+    }
+
+    /// Starts measuring a new peak of live buffer memory from what the device holds now (a
+    /// stage boundary). Natively, finished work is reclaimed first, so freed buffers do not
+    /// count against the next stage.
+    pub fn begin_peak(&self) {
+        self.poll_wait();
+        self.ledger.begin(self.device_live_bytes());
+    }
+
+    fn note_buffer(&self, bytes: u64) {
+        self.ledger.buffer(bytes, self.device_live_bytes());
     }
 
     /// Blocking constructor for native code (CLI, tests).
@@ -153,36 +190,42 @@ impl Gpu {
         } else {
             bytes
         };
-        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        let buffer = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(label),
             contents,
             usage: wgpu::BufferUsages::STORAGE
                 | wgpu::BufferUsages::COPY_SRC
                 | wgpu::BufferUsages::COPY_DST,
-        })
+        });
+        self.note_buffer(contents.len() as u64);
+        buffer
     }
 
     /// A uniform buffer holding `value`.
     pub fn uniform<T: bytemuck::Pod>(&self, label: &str, value: &T) -> wgpu::Buffer {
-        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        let buffer = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(label),
             contents: bytemuck::bytes_of(value),
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        })
+        });
+        self.note_buffer(std::mem::size_of::<T>() as u64);
+        buffer
     }
 
     /// An uninitialised (zeroed) storage buffer of `len` elements of `T`, checked against the
     /// device's limits first so an oversized request is an error, not a device loss.
     pub fn storage<T: bytemuck::Pod>(&self, label: &str, len: usize) -> Result<wgpu::Buffer, GpuError> {
         let size = self.check_binding::<T>(label, len)?;
-        Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size,
             usage: wgpu::BufferUsages::STORAGE
                 | wgpu::BufferUsages::COPY_SRC
                 | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
-        }))
+        });
+        self.note_buffer(size);
+        Ok(buffer)
     }
 
     /// The byte size of a binding of `len` elements of `T`, or an error naming the limit it
@@ -224,6 +267,7 @@ impl Gpu {
             label: Some(label),
             source: wgpu::ShaderSource::Wgsl(source.into()),
         });
+        self.ledger.pipelines(entries.len());
         entries
             .iter()
             .map(|e| {
@@ -252,6 +296,7 @@ impl Gpu {
             .iter()
             .map(|(i, b)| wgpu::BindGroupEntry { binding: *i, resource: b.as_entire_binding() })
             .collect();
+        self.ledger.bind_group();
         self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: None,
             layout: &pipeline.get_bind_group_layout(0),
@@ -279,30 +324,53 @@ impl Gpu {
         pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
     }
 
-    /// Reads `len` elements of `T` from the start of `buffer` (which needs COPY_SRC).
-    pub async fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer, len: usize) -> Result<Vec<T>, GpuError> {
-        let size = (len * std::mem::size_of::<T>()) as u64;
-        if size == 0 {
-            return Ok(Vec::new());
-        }
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+    /// A staging buffer for readbacks of up to `bytes` bytes, kept by a stage that reads back
+    /// repeatedly (each chunk of a decode, each tuning step) instead of one per read.
+    pub fn readback(&self, bytes: u64) -> Readback {
+        let size = bytes.max(4).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
             size,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        self.note_buffer(size);
+        Readback { buffer, capacity: size }
+    }
+
+    /// Reads `len` elements of `T` from the start of `buffer` (which needs COPY_SRC), through a
+    /// staging buffer made for this one read.
+    pub async fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer, len: usize) -> Result<Vec<T>, GpuError> {
+        let size = (len * std::mem::size_of::<T>()) as u64;
+        if size == 0 {
+            return Ok(Vec::new());
+        }
+        self.read_via(&self.readback(size), buffer, len).await
+    }
+
+    /// Reads `len` elements of `T` from the start of `buffer` through `staging`, which must
+    /// hold them.
+    pub async fn read_via<T: bytemuck::Pod>(&self, staging: &Readback, buffer: &wgpu::Buffer, len: usize) -> Result<Vec<T>, GpuError> {
+        let size = (len * std::mem::size_of::<T>()) as u64;
+        if size == 0 {
+            return Ok(Vec::new());
+        }
+        if size > staging.capacity {
+            return Err(GpuError::Readback(format!("{size} bytes do not fit a staging buffer of {}", staging.capacity)));
+        }
+        let staging = &staging.buffer;
         let mut encoder = self.device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size);
         self.queue.submit([encoder.finish()]);
 
         let (signal, wait) = oneshot();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| signal.send(r));
+        staging.slice(..size).map_async(wgpu::MapMode::Read, move |r| signal.send(r));
         self.poll_wait();
         wait.await
             .ok_or_else(|| GpuError::Readback("the map callback was dropped".into()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
         let view = staging
-            .slice(..)
+            .slice(..size)
             .get_mapped_range()
             .map_err(|e| GpuError::Readback(e.to_string()))?;
         let out = bytemuck::cast_slice::<u8, T>(&view).to_vec();
@@ -317,12 +385,57 @@ impl Gpu {
         pollster::block_on(self.read(buffer, len))
     }
 
+    /// Runs the uploads queued so far and, natively, waits for them, so that the device frees
+    /// their staging copies now: an upload's staging copy (as large as the data) otherwise
+    /// lives until the next submission completes, on top of what a stage allocates next.
+    pub fn flush_uploads(&self) {
+        self.queue.submit([]);
+        self.poll_wait();
+    }
+
     /// Natively, drive the device until submitted work is done; on the web the browser does it.
     pub fn poll_wait(&self) {
         #[cfg(not(target_arch = "wasm32"))]
         {
             let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
         }
+    }
+}
+
+/// Each stage's peak of device memory beyond what was held when the first stage began, named
+/// as the plan names its stages; nothing where the device does not count its memory.
+pub struct StagePeaks<'a> {
+    gpu: &'a Gpu,
+    held: Option<u64>,
+    pub peaks: Vec<(&'static str, u64)>,
+}
+
+impl<'a> StagePeaks<'a> {
+    /// Starts the first stage.
+    pub fn start(gpu: &'a Gpu) -> StagePeaks<'a> {
+        gpu.begin_peak();
+        StagePeaks { gpu, held: gpu.live_bytes(), peaks: Vec::new() }
+    }
+
+    /// Ends `stage` (and starts the next).
+    pub fn end(&mut self, stage: &'static str) {
+        if let (Some(held), Some(peak)) = (self.held, self.gpu.allocations().peak_live_bytes) {
+            self.peaks.push((stage, peak.saturating_sub(held)));
+        }
+        self.gpu.begin_peak();
+    }
+}
+
+/// A staging buffer kept for repeated readbacks ([`Gpu::readback`], [`Gpu::read_via`]).
+pub struct Readback {
+    buffer: wgpu::Buffer,
+    capacity: u64,
+}
+
+impl Readback {
+    /// Bytes it holds.
+    pub fn capacity(&self) -> u64 {
+        self.capacity
     }
 }
 

@@ -89,6 +89,12 @@ impl ScanFile {
     /// What the cloud's size, or the file's own statement, suggests about its units.
     pub fn units_guess(&self) -> crate::units::UnitsGuess {
         let longest = self.cloud.bounds().map_or(0.0, |b| b.longest_side() as f64);
+        // LAS is a geospatial format: without a coordinate system nkrr reads, its numbers are
+        // taken as metres (the reader's note says so), whatever the size.
+        if self.format == ScanFormat::Las && self.stated_units.is_none() {
+            let reason = "LAS coordinates without a coordinate system nkrr reads are taken as metres".to_string();
+            return crate::units::UnitsGuess { units: Some(crate::units::Units::Metres), reason, warn: false };
+        }
         crate::units::guess(longest, self.stated_units)
     }
 

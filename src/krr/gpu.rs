@@ -53,16 +53,33 @@ pub const PREDICT_CHUNK: usize = 65536;
 
 /// What [`GpuObjective`] allocates for `pairs` training pairs of `d` features and `m` inducing
 /// points when bindings are at most `binding` bytes: on the GPU `X`, `y` and the `K~` blocks
-/// (`4·pairs·(m + d + 4)`), one row block's scratch, the m×m accumulator and gradient sums; on
+/// (`4·pairs·(m + d + 4)`), one row block's scratch, the m×m accumulator, W and the staging
+/// buffer the accumulator is read back through, and the gradient sums; on
 /// the host the problem in f64 and its f32 upload (`8·pairs·(d + 1) + 4·pairs·(d + 3)`) and the
 /// f64 m×m algebra (about twelve m×m matrices).
 pub fn objective_footprint(pairs: u64, m: u64, d: u64, binding: u64) -> Footprint {
     let rows = (binding / (4 * m)).min(MAX_BLOCK_ROWS as u64).min(pairs).max(1);
+    let (_, chunks) = reduction_chunks(pairs as usize, rows as usize);
+    let chunks = chunks as u64;
     Footprint {
-        gpu: 4 * pairs * (m + d + 4) + 4 * rows * m + 16 * m * m + 48 * m * d,
-        largest: (4 * d * pairs).max(4 * rows * m).max(12 * m * m),
+        // K~, X, y (f32 and fixed point), r; P; A's accumulator, W and the staging copy of each
+        // step's W, A's readback; the partial gradient sums per reduction chunk; Z, the sums; β
+        // and b's accumulator.
+        gpu: 4 * pairs * (m + d + 4) + 4 * rows * m + 32 * m * m + 8 * m * d * chunks + 12 * m * d + 40 * m,
+        largest: (4 * d * pairs).max(4 * rows * m).max(12 * m * m).max(8 * m * d * chunks),
         host: 8 * pairs * (d + 1) + 4 * pairs * (d + 3) + 96 * m * m,
     }
+}
+
+/// The gradient's reduction over `n` rows in blocks of at most `block_rows`: rows per chunk
+/// (about `n / TARGET_CHUNKS`), and chunks over all blocks.
+pub(super) fn reduction_chunks(n: usize, block_rows: usize) -> (usize, usize) {
+    let chunk_rows = n.div_ceil(TARGET_CHUNKS).next_multiple_of(RED_ROWS).clamp(MIN_CHUNK_ROWS, MAX_CHUNK_ROWS);
+    let block_rows = block_rows.max(1);
+    let full = n / block_rows;
+    let last = n % block_rows;
+    let chunks = full * block_rows.div_ceil(chunk_rows) + last.div_ceil(chunk_rows);
+    (chunk_rows, chunks)
 }
 
 /// The most training pairs of `d` features the GPU objective can take: `X` (4·d bytes a pair)
@@ -77,10 +94,12 @@ pub fn max_inducing_points(binding: u64) -> u64 {
     ((binding / 12) as f64).sqrt() as u64
 }
 
-/// What [`GpuPredictor::predict`] allocates on the GPU for a chunk of `chunk` queries: the
-/// inducing points and the chunk's features and outputs.
+/// What a [`PreparedPredictor`](super::PreparedPredictor) predictor holds on the GPU for chunks of
+/// `chunk` queries: the inducing points, 1/s and β, the chunk's features, its two output halves
+/// and their staging copy, and a uniform per segment of inducing points.
 pub fn predict_footprint(m: u64, d: u64, chunk: u64) -> Footprint {
-    Footprint { gpu: 4 * m * d + (4 * d + 16) * chunk, largest: 4 * m * d, host: 0 }
+    let segments = m.div_ceil(PREDICT_SEGMENT as u64);
+    Footprint { gpu: 4 * m * (d + 1) + 4 * d + (4 * d + 16) * chunk + 32 * segments, largest: (4 * m * d).max(4 * d * chunk), host: 0 }
 }
 
 // ---------------------------------------------------------------------------------------------

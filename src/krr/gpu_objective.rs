@@ -55,7 +55,7 @@
 //! [`PhaseTimings`] splits GPU time by phase; on the web the browser runs the work
 //! asynchronously and GPU time shows up in `readback`.
 
-use super::gpu::{check_d, check_settings, fixed_point_y, params_f32, KrrGpuError, PhaseTimings, GRAM_ROWS, MAX_BLOCK_ROWS, MAX_CHUNK_ROWS, MIN_CHUNK_ROWS, RED_J, RED_ROWS, TARGET_CHUNKS, TILE, WG};
+use super::gpu::{check_d, check_settings, fixed_point_y, params_f32, KrrGpuError, PhaseTimings, reduction_chunks, GRAM_ROWS, MAX_BLOCK_ROWS, RED_J, TILE, WG};
 use super::gpu_predictor::GpuPredictor;
 use super::kernel;
 use super::linalg::{self, dot};
@@ -168,31 +168,53 @@ struct Block {
     chunks: usize,
 }
 
-/// Device buffers for one inducing-point count `m` (rebuilt when `m` or the block size changes).
+/// The problem's own buffers, which every workspace binds.
+struct Data<'a> {
+    x: &'a wgpu::Buffer,
+    y: &'a wgpu::Buffer,
+    yq: &'a wgpu::Buffer,
+}
+
+/// One row block's passes of the gradient: its uniform (rewritten each evaluation, for `s_r`)
+/// and the bind groups of its three kernels.
+struct GradBinds {
+    dims: wgpu::Buffer,
+    residual: wgpu::BindGroup,
+    grad_p: wgpu::BindGroup,
+    reduce: wgpu::BindGroup,
+}
+
+/// Device buffers, uniforms and bind groups for one inducing-point count `m`, made once and
+/// reused by every evaluation (rebuilt only when `m` or the block size changes).
 struct Workspace {
     m: usize,
     max_rows: usize,
     blocks: Vec<Block>,
     chunk_rows: usize,
-    total_chunks: usize,
     z: wgpu::Buffer,
     inv_s: wgpu::Buffer,
-    /// `K~` row blocks, u32 fixed point (`q = round(K · 2²⁴)`).
-    k: Vec<wgpu::Buffer>,
     /// `Σ q q'` as three u32 words per entry (`3 × m × m`), and the sums behind `b` (`9 × m`, see
     /// `krr_gram.wgsl`).
     acc: wgpu::Buffer,
     bacc: wgpu::Buffer,
     beta: wgpu::Buffer,
     w: wgpu::Buffer,
-    r: wgpu::Buffer,
-    p: wgpu::Buffer,
-    part: wgpu::Buffer,
     sums: wgpu::Buffer,
+    /// Per block: the kernel block's bind group; the gram's (`gram`, `gram_b`) per slice of
+    /// [`GRAM_ROWS`] rows; the gradient's.
+    kernel: Vec<wgpu::BindGroup>,
+    gram: Vec<Vec<(wgpu::BindGroup, wgpu::BindGroup)>>,
+    grad: Vec<GradBinds>,
+    sum: wgpu::BindGroup,
+    /// Every readback of an evaluation (`A`, `b`, the gradient sums) goes through it.
+    staging: crate::gpu::Readback,
+    /// Buffers only the bind groups refer to: `K~` row blocks (u32 fixed point,
+    /// `q = round(K · 2²⁴)`), r, P, the partial sums and the fixed uniforms.
+    _held: Vec<wgpu::Buffer>,
 }
 
 impl Workspace {
-    fn new(gpu: &Gpu, n: usize, d: usize, m: usize, block_rows: usize) -> Result<Workspace, GpuError> {
+    fn new(gpu: &Gpu, pipes: &Pipes, data: Data, n: usize, d: usize, m: usize, block_rows: usize) -> Result<Workspace, GpuError> {
         let dim = gpu.limits.max_compute_workgroups_per_dimension as usize;
         let col_groups = m.div_ceil(TILE);
         if col_groups > dim {
@@ -204,7 +226,7 @@ impl Workspace {
             .min(MAX_BLOCK_ROWS)
             .min(block_rows)
             .max(1);
-        let chunk_rows = n.div_ceil(TARGET_CHUNKS).next_multiple_of(RED_ROWS).clamp(MIN_CHUNK_ROWS, MAX_CHUNK_ROWS);
+        let (chunk_rows, _) = reduction_chunks(n, max_rows);
         let mut blocks = Vec::new();
         let mut chunk0 = 0;
         for row0 in (0..n).step_by(max_rows) {
@@ -217,12 +239,13 @@ impl Workspace {
             chunk0 += chunks;
         }
         let total_chunks = chunk0;
-        let max_rows = blocks.iter().map(|b| b.rows).max().unwrap_or(1);
+        debug_assert_eq!(total_chunks, reduction_chunks(n, max_rows).1, "the footprint counts the chunks made here");
+        let largest_rows = blocks.iter().map(|b| b.rows).max().unwrap_or(1);
         for (label, len) in [
             ("Z", m * d),
             ("A = K^T K accumulator", 3 * m * m),
             ("W", m * m),
-            ("P block", max_rows * m),
+            ("P block", largest_rows * m),
             ("gradient partial sums", total_chunks * 2 * m * d),
         ] {
             gpu.check_binding::<f32>(label, len)?;
@@ -232,24 +255,100 @@ impl Workspace {
             .iter()
             .map(|b| gpu.storage::<u32>("K block", b.rows * m))
             .collect::<Result<Vec<_>, _>>()?;
+        let z = gpu.storage::<f32>("Z", m * d)?;
+        let inv_s = gpu.storage::<f32>("1/s", d)?;
+        let acc = gpu.storage::<u32>("A = K^T K accumulator", 3 * m * m)?;
+        let bacc = gpu.storage::<u32>("b = K^T y accumulator", 9 * m)?;
+        let beta = gpu.storage::<f32>("beta", m)?;
+        let w = gpu.storage::<f32>("W", m * m)?;
+        let r = gpu.storage::<f32>("r", n)?;
+        let p = gpu.storage::<f32>("P block", largest_rows * m)?;
+        let part = gpu.storage::<f32>("gradient partial sums", total_chunks * 2 * m * d)?;
+        let sums = gpu.storage::<f32>("gradient sums", 2 * m * d)?;
+        let mut held = Vec::new();
+        let mut kernel = Vec::new();
+        let mut gram = Vec::new();
+        let mut grad = Vec::new();
+        for (b, blk) in blocks.iter().enumerate() {
+            let dims = gpu.uniform("krr kernel dims", &KernelDims { rows: blk.rows as u32, row0: blk.row0 as u32, m: m as u32, _pad: 0 });
+            kernel.push(gpu.bind_at(
+                &pipes.kernel_block,
+                &[(kernel_at::X, data.x), (kernel_at::Z, &z), (kernel_at::INV_S, &inv_s), (kernel_at::K, &k[b]), (kernel_at::DIMS, &dims)],
+            ));
+            held.push(dims);
+            let mut slices = Vec::new();
+            for r_begin in (0..blk.rows).step_by(GRAM_ROWS) {
+                let dims = gpu.uniform(
+                    "krr gram dims",
+                    &GramDims {
+                        r_begin: r_begin as u32,
+                        r_end: (r_begin + GRAM_ROWS).min(blk.rows) as u32,
+                        row0: blk.row0 as u32,
+                        m: m as u32,
+                        first: (b == 0 && r_begin == 0) as u32,
+                        _pad: [0; 3],
+                    },
+                );
+                let a = gpu.bind_at(&pipes.gram, &[(gram_at::K, &k[b]), (gram_at::ACC, &acc), (gram_at::DIMS, &dims)]);
+                let bb = gpu.bind_at(&pipes.gram_b, &[(gram_at::K, &k[b]), (gram_at::DIMS, &dims), (gram_at::YQ, data.yq), (gram_at::BACC, &bacc)]);
+                slices.push((a, bb));
+                held.push(dims);
+            }
+            gram.push(slices);
+            let dims = gpu.uniform("krr grad dims", &grad_dims(blk, m, chunk_rows, 0.0));
+            let residual = gpu.bind_at(
+                &pipes.residual,
+                &[(grad_at::K, &k[b]), (grad_at::BETA, &beta), (grad_at::R, &r), (grad_at::DIMS, &dims), (grad_at::Y, data.y)],
+            );
+            let grad_p = gpu.bind_at(
+                &pipes.grad_p,
+                &[(grad_at::K, &k[b]), (grad_at::W, &w), (grad_at::BETA, &beta), (grad_at::R, &r), (grad_at::P, &p), (grad_at::DIMS, &dims)],
+            );
+            let reduce = gpu.bind_at(
+                &pipes.grad_reduce,
+                &[(grad_at::P, &p), (grad_at::X, data.x), (grad_at::Z, &z), (grad_at::PART, &part), (grad_at::DIMS, &dims)],
+            );
+            grad.push(GradBinds { dims, residual, grad_p, reduce });
+        }
+        let len = 2 * m * d;
+        let sdims = gpu.uniform("krr sum dims", &SumDims { len: len as u32, chunks: total_chunks as u32, one: 1.0, _b: 0 });
+        let sum = gpu.bind_at(&pipes.grad_sum, &[(grad_at::PART_IN, &part), (grad_at::SUMS, &sums), (grad_at::SUM_DIMS, &sdims)]);
+        let staging = gpu.readback(4 * (3 * m * m).max(9 * m).max(len) as u64);
+        held.extend(k);
+        held.extend([r, p, part, sdims]);
         Ok(Workspace {
             m,
             max_rows: block_rows,
             blocks,
             chunk_rows,
-            total_chunks,
-            z: gpu.storage::<f32>("Z", m * d)?,
-            inv_s: gpu.storage::<f32>("1/s", d)?,
-            k,
-            acc: gpu.storage::<u32>("A = K^T K accumulator", 3 * m * m)?,
-            bacc: gpu.storage::<u32>("b = K^T y accumulator", 9 * m)?,
-            beta: gpu.storage::<f32>("beta", m)?,
-            w: gpu.storage::<f32>("W", m * m)?,
-            r: gpu.storage::<f32>("r", n)?,
-            p: gpu.storage::<f32>("P block", max_rows * m)?,
-            part: gpu.storage::<f32>("gradient partial sums", total_chunks * 2 * m * d)?,
-            sums: gpu.storage::<f32>("gradient sums", 2 * m * d)?,
+            z,
+            inv_s,
+            acc,
+            bacc,
+            beta,
+            w,
+            sums,
+            kernel,
+            gram,
+            grad,
+            sum,
+            staging,
+            _held: held,
         })
+    }
+}
+
+/// The gradient's uniform for row block `blk` (`s_r` changes with every evaluation).
+fn grad_dims(blk: &Block, m: usize, chunk_rows: usize, s_r: f32) -> GradDims {
+    GradDims {
+        rows: blk.rows as u32,
+        row0: blk.row0 as u32,
+        m: m as u32,
+        _s: m as u32,
+        chunk_rows: chunk_rows as u32,
+        chunk0: blk.chunk0 as u32,
+        s_r,
+        one: 1.0,
     }
 }
 
@@ -338,6 +437,8 @@ impl GpuObjective {
             return Err(GpuError::Kernel(format!("building the KRR kernels: {e}")).into());
         }
         let predictor = GpuPredictor::new(gpu, d).await?;
+        // X's staging copy goes before the workspace is made.
+        gpu.flush_uploads();
         Ok(GpuObjective {
             gpu: gpu.clone(),
             n,
@@ -443,7 +544,8 @@ impl GpuObjective {
         let stale = self.ws.as_ref().is_none_or(|w| w.m != m || w.max_rows != self.block_rows);
         if stale {
             self.ws = None; // free the old buffers first
-            self.ws = Some(Workspace::new(&self.gpu, self.n, self.d, m, self.block_rows)?);
+            let data = Data { x: &self.x, y: &self.y, yq: &self.yq };
+            self.ws = Some(Workspace::new(&self.gpu, &self.pipes, data, self.n, self.d, m, self.block_rows)?);
         }
         Ok(())
     }
@@ -465,17 +567,9 @@ impl GpuObjective {
 
         let t = now_s();
         let mut enc = g.device.create_command_encoder(&Default::default());
-        for (b, blk) in ws.blocks.iter().enumerate() {
-            let dims = g.uniform(
-                "krr kernel dims",
-                &KernelDims { rows: blk.rows as u32, row0: blk.row0 as u32, m: m as u32, _pad: 0 },
-            );
-            let bg = g.bind_at(
-                &self.pipes.kernel_block,
-                &[(kernel_at::X, &self.x), (kernel_at::Z, &ws.z), (kernel_at::INV_S, &ws.inv_s), (kernel_at::K, &ws.k[b]), (kernel_at::DIMS, &dims)],
-            );
+        for (blk, bind) in ws.blocks.iter().zip(&ws.kernel) {
             let groups = [m.div_ceil(TILE) as u32, blk.rows.div_ceil(TILE) as u32, 1];
-            g.encode_pass(&mut enc, &self.pipes.kernel_block, &bg, groups);
+            g.encode_pass(&mut enc, &self.pipes.kernel_block, bind, groups);
         }
         g.queue.submit([enc.finish()]);
         g.poll_wait();
@@ -484,32 +578,17 @@ impl GpuObjective {
         let t = now_s();
         let mut enc = g.device.create_command_encoder(&Default::default());
         let tiles = m.div_ceil(TILE) as u32;
-        for (b, blk) in ws.blocks.iter().enumerate() {
-            for r_begin in (0..blk.rows).step_by(GRAM_ROWS) {
-                let dims = g.uniform(
-                    "krr gram dims",
-                    &GramDims {
-                        r_begin: r_begin as u32,
-                        r_end: (r_begin + GRAM_ROWS).min(blk.rows) as u32,
-                        row0: blk.row0 as u32,
-                        m: m as u32,
-                        first: (b == 0 && r_begin == 0) as u32,
-                        _pad: [0; 3],
-                    },
-                );
-                let bg = g.bind_at(&self.pipes.gram, &[(gram_at::K, &ws.k[b]), (gram_at::ACC, &ws.acc), (gram_at::DIMS, &dims)]);
-                g.encode_pass(&mut enc, &self.pipes.gram, &bg, [tiles, tiles, 1]);
-                let bg = g.bind_at(&self.pipes.gram_b, &[(gram_at::K, &ws.k[b]), (gram_at::DIMS, &dims), (gram_at::YQ, &self.yq), (gram_at::BACC, &ws.bacc)]);
-                g.encode_pass(&mut enc, &self.pipes.gram_b, &bg, [tiles, 1, 1]);
-            }
+        for (a, b) in ws.gram.iter().flatten() {
+            g.encode_pass(&mut enc, &self.pipes.gram, a, [tiles, tiles, 1]);
+            g.encode_pass(&mut enc, &self.pipes.gram_b, b, [tiles, 1, 1]);
         }
         g.queue.submit([enc.finish()]);
         g.poll_wait();
         tm.gram += now_s() - t;
 
         let t = now_s();
-        let words = g.read::<u32>(&ws.acc, 3 * m * m).await?;
-        let bw = g.read::<u32>(&ws.bacc, 9 * m).await?;
+        let words = g.read_via::<u32>(&ws.staging, &ws.acc, 3 * m * m).await?;
+        let bw = g.read_via::<u32>(&ws.staging, &ws.bacc, 9 * m).await?;
         tm.readback += now_s() - t;
 
         // Σ_i q_ij q_ik = w0 + 2³² w1 + 2⁶⁴ w2, and A = that · 2⁻⁴⁸.
@@ -629,53 +708,20 @@ impl GpuObjective {
         g.queue.write_buffer(&ws.beta, 0, bytemuck::cast_slice(&beta32));
         g.queue.write_buffer(&ws.w, 0, bytemuck::cast_slice(&w32));
         let mut enc = g.device.create_command_encoder(&Default::default());
-        for (bi, blk) in ws.blocks.iter().enumerate() {
-            let dims = g.uniform(
-                "krr grad dims",
-                &GradDims {
-                    rows: blk.rows as u32,
-                    row0: blk.row0 as u32,
-                    m: m as u32,
-                    _s: m as u32,
-                    chunk_rows: ws.chunk_rows as u32,
-                    chunk0: blk.chunk0 as u32,
-                    s_r: s_r as f32,
-                    one: 1.0,
-                },
-            );
-            // r = K~β − y for this block, then P.
-            let bg = g.bind_at(
-                &self.pipes.residual,
-                &[(grad_at::K, &ws.k[bi]), (grad_at::BETA, &ws.beta), (grad_at::R, &ws.r), (grad_at::DIMS, &dims), (grad_at::Y, &self.y)],
-            );
-            g.encode_pass(&mut enc, &self.pipes.residual, &bg, g.dispatch_linear(blk.rows as u64, WG)?);
-            let bg = g.bind_at(
-                &self.pipes.grad_p,
-                &[
-                    (grad_at::K, &ws.k[bi]),
-                    (grad_at::W, &ws.w),
-                    (grad_at::BETA, &ws.beta),
-                    (grad_at::R, &ws.r),
-                    (grad_at::P, &ws.p),
-                    (grad_at::DIMS, &dims),
-                ],
-            );
-            g.encode_pass(&mut enc, &self.pipes.grad_p, &bg, [m.div_ceil(TILE) as u32, blk.rows.div_ceil(TILE) as u32, 1]);
-            let bg = g.bind_at(
-                &self.pipes.grad_reduce,
-                &[(grad_at::P, &ws.p), (grad_at::X, &self.x), (grad_at::Z, &ws.z), (grad_at::PART, &ws.part), (grad_at::DIMS, &dims)],
-            );
-            g.encode_pass(&mut enc, &self.pipes.grad_reduce, &bg, [m.div_ceil(RED_J) as u32, blk.chunks as u32, 1]);
+        for (blk, binds) in ws.blocks.iter().zip(&ws.grad) {
+            g.queue.write_buffer(&binds.dims, 0, bytemuck::bytes_of(&grad_dims(blk, m, ws.chunk_rows, s_r as f32)));
+            // r = K~β − y for this block, then P, then its share of the sums.
+            g.encode_pass(&mut enc, &self.pipes.residual, &binds.residual, g.dispatch_linear(blk.rows as u64, WG)?);
+            g.encode_pass(&mut enc, &self.pipes.grad_p, &binds.grad_p, [m.div_ceil(TILE) as u32, blk.rows.div_ceil(TILE) as u32, 1]);
+            g.encode_pass(&mut enc, &self.pipes.grad_reduce, &binds.reduce, [m.div_ceil(RED_J) as u32, blk.chunks as u32, 1]);
         }
         let len = 2 * m * d;
-        let sdims = g.uniform("krr sum dims", &SumDims { len: len as u32, chunks: ws.total_chunks as u32, one: 1.0, _b: 0 });
-        let bg = g.bind_at(&self.pipes.grad_sum, &[(grad_at::PART_IN, &ws.part), (grad_at::SUMS, &ws.sums), (grad_at::SUM_DIMS, &sdims)]);
-        g.encode_pass(&mut enc, &self.pipes.grad_sum, &bg, g.dispatch_linear(len as u64, WG)?);
+        g.encode_pass(&mut enc, &self.pipes.grad_sum, &ws.sum, g.dispatch_linear(len as u64, WG)?);
         g.queue.submit([enc.finish()]);
         g.poll_wait();
         tm.grad_pass += now_s() - t;
         let t = now_s();
-        let sums = g.read::<f32>(&ws.sums, len).await?;
+        let sums = g.read_via::<f32>(&ws.staging, &ws.sums, len).await?;
         tm.readback += now_s() - t;
 
         // Assembly: ∂L/∂z = (P side + Q side)/s², ∂L/∂log s = s·∂L/∂s = (Σ …)/s².

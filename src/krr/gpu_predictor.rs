@@ -34,6 +34,81 @@ struct PredictDims {
 }
 
 
+fn dims_of(rows: usize, j_begin: usize, m: usize) -> Result<PredictDims, GpuError> {
+    Ok(PredictDims {
+        q: to_u32("queries", rows)?,
+        j_begin: j_begin as u32,
+        j_end: to_u32("m", (j_begin + PREDICT_SEGMENT).min(m))?,
+        first: (j_begin == 0) as u32,
+        one: 1.0,
+        _pad: [0; 3],
+    })
+}
+
+struct Segment {
+    j_begin: usize,
+    dims: wgpu::Buffer,
+    bind: wgpu::BindGroup,
+}
+
+/// The predictor with its coefficients uploaded and its buffers made ([`GpuPredictor::prepare`]).
+pub struct PreparedPredictor {
+    gpu: Gpu,
+    pipe: wgpu::ComputePipeline,
+    d: usize,
+    m: usize,
+    chunk: usize,
+    /// The query count the segments' uniforms hold now.
+    rows: std::cell::Cell<usize>,
+    q_buf: wgpu::Buffer,
+    o_buf: wgpu::Buffer,
+    segments: Vec<Segment>,
+    staging: crate::gpu::Readback,
+    /// Z, 1/s and β, bound by the segments.
+    _held: [wgpu::Buffer; 3],
+}
+
+impl PreparedPredictor {
+    /// Queries per submission.
+    pub fn chunk_queries(&self) -> usize {
+        self.chunk
+    }
+
+    /// `g` at each row of `queries` (`q × d`).
+    pub async fn predict(&self, queries: &[f32]) -> Result<Vec<f32>, KrrGpuError> {
+        let d = self.d;
+        if !queries.len().is_multiple_of(d) {
+            return Err(KrrError::Shape(format!("predict: {} query values, not a multiple of d = {d}", queries.len())).into());
+        }
+        let nq = queries.len() / d;
+        let g = &self.gpu;
+        let mut out = Vec::with_capacity(nq);
+        let scope = g.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        for q0 in (0..nq).step_by(self.chunk) {
+            let rows = self.chunk.min(nq - q0);
+            g.queue.write_buffer(&self.q_buf, 0, bytemuck::cast_slice(&queries[q0 * d..(q0 + rows) * d]));
+            if rows != self.rows.get() {
+                for s in &self.segments {
+                    g.queue.write_buffer(&s.dims, 0, bytemuck::bytes_of(&dims_of(rows, s.j_begin, self.m)?));
+                }
+                self.rows.set(rows);
+            }
+            let groups = g.dispatch_linear(rows as u64, TILE as u32)?;
+            let mut enc = g.device.create_command_encoder(&Default::default());
+            for s in &self.segments {
+                g.encode_pass(&mut enc, &self.pipe, &s.bind, groups);
+            }
+            g.queue.submit([enc.finish()]);
+            let hl = g.read_via::<f32>(&self.staging, &self.o_buf, 2 * rows).await?;
+            out.extend((0..rows).map(|i| (hl[i] as f64 + hl[rows + i] as f64) as f32));
+        }
+        if let Some(e) = scope.pop().await {
+            return Err(GpuError::Kernel(format!("predict: {e}")).into());
+        }
+        Ok(out)
+    }
+}
+
 /// The Nyström predictor on the GPU for feature dimension `d`: `g(q) = Σ_j β_j k(q, z_j)` at
 /// millions of queries, in chunks of at most [`PREDICT_CHUNK`] (fewer where a binding cannot hold
 /// that many).
@@ -87,8 +162,22 @@ impl GpuPredictor {
 
     /// `g` at each row of `queries` (`q × d`, f32 as the network produces features), for
     /// coefficients `beta` (m), inducing points `z` (`m × d`) and log length-scales (`d`).
-    /// The same checks as [`predict`](super::predict).
+    /// The same checks as [`predict`](super::predict). For repeated calls with the same
+    /// coefficients (meshing), keep a [`GpuPredictor::prepare`]d one instead.
     pub async fn predict(&self, beta: &[f64], z: &[f64], log_s: &[f64], queries: &[f32]) -> Result<Vec<f32>, KrrGpuError> {
+        let d = self.d;
+        if !queries.len().is_multiple_of(d) {
+            return Err(KrrError::Shape(format!("predict: {} query values, not a multiple of d = {d}", queries.len())).into());
+        }
+        let prepared = self.prepare(beta, z, log_s, queries.len() / d)?;
+        prepared.predict(queries).await
+    }
+
+    /// Uploads the coefficients and makes the buffers, bind groups and staging buffer for
+    /// submissions of at most `queries` queries (and at most [`GpuPredictor::chunk_queries`]),
+    /// once for every [`PreparedPredictor::predict`]: [`predict_footprint`](super::gpu::predict_footprint)
+    /// is what it holds.
+    pub fn prepare(&self, beta: &[f64], z: &[f64], log_s: &[f64], queries: usize) -> Result<PreparedPredictor, KrrGpuError> {
         let d = self.d;
         let m = beta.len();
         if log_s.len() != d {
@@ -100,15 +189,8 @@ impl GpuPredictor {
         if z.len() != m * d {
             return Err(KrrError::Shape(format!("predict: z has {} values, expected m·d = {}", z.len(), m * d)).into());
         }
-        if !queries.len().is_multiple_of(d) {
-            return Err(KrrError::Shape(format!("predict: {} query values, not a multiple of d = {d}", queries.len())).into());
-        }
         if beta.iter().chain(z).chain(log_s).any(|v| !v.is_finite()) {
             return Err(KrrError::NonFinite("predict: beta, z or log_s".into()).into());
-        }
-        let nq = queries.len() / d;
-        if nq == 0 {
-            return Ok(Vec::new());
         }
         let (inv_s, z32) = params_f32(&Params { log_s: log_s.to_vec(), z: z.to_vec() })?;
         let beta32: Vec<f32> = beta.iter().map(|&v| v as f32).collect();
@@ -117,28 +199,16 @@ impl GpuPredictor {
         let z_buf = g.upload("krr predict z", &z32);
         let s_buf = g.upload("krr predict 1/s", &inv_s);
         let b_buf = g.upload("krr predict beta", &beta32);
-        let chunk = self.chunk.min(nq);
+        let chunk = self.chunk.min(queries).max(1);
         let q_buf = g.storage::<f32>("krr predict queries", chunk * d)?;
         let o_buf = g.storage::<f32>("krr predict out", 2 * chunk)?;
-        let mut out = Vec::with_capacity(nq);
-        let scope = g.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let dims_of = |rows: usize, j_begin: usize| -> Result<PredictDims, GpuError> {
-            Ok(PredictDims {
-                q: to_u32("queries", rows)?,
-                j_begin: j_begin as u32,
-                j_end: to_u32("m", (j_begin + PREDICT_SEGMENT).min(m))?,
-                first: (j_begin == 0) as u32,
-                one: 1.0,
-                _pad: [0; 3],
-            })
-        };
-        // One uniform and bind group per segment of inducing points, built once per call and
-        // reused by every chunk; only a shorter last chunk rewrites the query count (queue
-        // writes are ordered after the earlier chunks' submissions).
+        // One uniform and bind group per segment of inducing points, reused by every chunk;
+        // only a shorter chunk rewrites the query count (queue writes are ordered after the
+        // earlier chunks' submissions).
         let mut segments = Vec::new();
         for j_begin in (0..m).step_by(PREDICT_SEGMENT) {
-            let dims = g.uniform("krr predict dims", &dims_of(chunk, j_begin)?);
-            let bg = g.bind_at(
+            let dims = g.uniform("krr predict dims", &dims_of(chunk, j_begin, m)?);
+            let bind = g.bind_at(
                 &self.pipe,
                 &[
                     (predict_at::QUERIES, &q_buf),
@@ -149,29 +219,10 @@ impl GpuPredictor {
                     (predict_at::DIMS, &dims),
                 ],
             );
-            segments.push((j_begin, dims, bg));
+            segments.push(Segment { j_begin, dims, bind });
         }
-        for q0 in (0..nq).step_by(chunk) {
-            let rows = chunk.min(nq - q0);
-            g.queue.write_buffer(&q_buf, 0, bytemuck::cast_slice(&queries[q0 * d..(q0 + rows) * d]));
-            if rows != chunk {
-                for (j_begin, dims, _) in &segments {
-                    g.queue.write_buffer(dims, 0, bytemuck::bytes_of(&dims_of(rows, *j_begin)?));
-                }
-            }
-            let groups = g.dispatch_linear(rows as u64, TILE as u32)?;
-            let mut enc = g.device.create_command_encoder(&Default::default());
-            for (_, _, bg) in &segments {
-                g.encode_pass(&mut enc, &self.pipe, bg, groups);
-            }
-            g.queue.submit([enc.finish()]);
-            let hl = g.read::<f32>(&o_buf, 2 * rows).await?;
-            out.extend((0..rows).map(|i| (hl[i] as f64 + hl[rows + i] as f64) as f32));
-        }
-        if let Some(e) = scope.pop().await {
-            return Err(GpuError::Kernel(format!("predict: {e}")).into());
-        }
-        Ok(out)
+        let staging = g.readback((8 * chunk) as u64);
+        Ok(PreparedPredictor { gpu: g.clone(), pipe: self.pipe.clone(), d, m, chunk, rows: std::cell::Cell::new(chunk), q_buf, o_buf, segments, staging, _held: [z_buf, s_buf, b_buf] })
     }
 
     /// [`GpuPredictor::predict`], blocking (native only).

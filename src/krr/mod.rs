@@ -39,7 +39,7 @@ pub mod tune;
 pub use error::KrrError;
 pub use gpu::{KrrGpuError, PhaseTimings};
 pub use gpu_objective::GpuObjective;
-pub use gpu_predictor::GpuPredictor;
+pub use gpu_predictor::{GpuPredictor, PreparedPredictor};
 pub use init::{init_length_scales, init_params, init_z, LengthScaleInit};
 pub use problem::{Eval, Grad, Objective, Params, Problem, Ridge, Weighting};
 pub use reference::{objective, objective_and_grad, predict, Reference};

@@ -5,6 +5,7 @@
 pub mod colour;
 pub mod components;
 pub mod extract;
+pub mod finish;
 pub mod fit;
 pub mod marching_cubes;
 pub mod marching_cubes_gpu;

@@ -20,7 +20,7 @@
 //! - Decoding goes in chunks of [`GpuNet::chunk_queries`] queries (at most [`MAX_DECODE_CHUNK`],
 //!   fewer where the device's binding limit requires), so a call with millions of queries
 //!   respects binding and dispatch limits and no submission runs long enough to trip a
-//!   browser's GPU watchdog; the chunk buffers are allocated once per call and reused.
+//!   browser's GPU watchdog; the chunk buffers are allocated once per [`Decoder`] and reused.
 //! - Everything is f32 (browsers have no f64), workgroups are 64 invocations, and 1-D work is
 //!   folded into 2-D dispatches by [`Gpu::dispatch_linear`]. Device errors during a call are
 //!   caught with an error scope and returned as [`GpuError::Kernel`].
@@ -134,11 +134,13 @@ pub fn decode_chunk(cfg: &NetConfig, binding: u64, queries: u64) -> u64 {
     (max as u64).min(queries).max(1)
 }
 
-/// What one decode submission of `queries` queries allocates on the GPU: queries, features and
-/// logits of a chunk, and their readback copies (the planes are counted by their owner).
+/// What a [`Decoder`] for submissions of `queries` queries holds on the GPU: queries, features
+/// and logits of a chunk, the staging buffer both are read back through, and its parameters (the
+/// planes are counted by their owner).
 pub fn decode_footprint(cfg: &NetConfig, binding: u64, queries: u64) -> Footprint {
     let (c, cd) = (cfg.c_dim as u64, decode_chunk(cfg, binding, queries));
-    Footprint { gpu: (20 + 8 * c) * cd, largest: 4 * c * cd, host: 0 }
+    let params = std::mem::size_of::<DecParams>() as u64;
+    Footprint { gpu: (16 + 8 * c) * cd + params, largest: 4 * c * cd, host: 0 }
 }
 
 #[repr(C)]
@@ -784,8 +786,17 @@ impl GpuNet {
         Ok(out)
     }
     /// Queries (normalised coordinates) → (features `Q × c_dim`, row-major; logits `Q`), in
-    /// chunks of [`GpuNet::chunk_queries`].
+    /// chunks of [`GpuNet::chunk_queries`]. For repeated calls on the same planes (meshing),
+    /// keep a [`GpuNet::decoder`] instead: this makes one for the call.
     pub async fn decode(&self, planes: &GpuPlanes, queries: &[[f32; 3]]) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
+        if queries.is_empty() {
+            self.check_planes(planes)?;
+            return Ok((Vec::new(), Vec::new()));
+        }
+        self.decoder(planes, queries.len())?.decode(queries).await
+    }
+
+    fn check_planes(&self, planes: &GpuPlanes) -> Result<(), GpuError> {
         let cfg = &self.config;
         if (planes.c_dim, planes.reso) != (cfg.c_dim, cfg.reso) {
             return Err(GpuError::Kernel(format!(
@@ -793,21 +804,23 @@ impl GpuNet {
                 planes.c_dim, planes.reso, cfg.c_dim, cfg.reso
             )));
         }
-        let c = cfg.c_dim;
-        let mut features = Vec::with_capacity(queries.len() * c);
-        let mut logits = Vec::with_capacity(queries.len());
-        if queries.is_empty() {
-            return Ok((features, logits));
-        }
+        Ok(())
+    }
+
+    /// The buffers, bind group and staging buffer for decoding `planes` in submissions of at
+    /// most `queries` queries (and at most [`GpuNet::chunk_queries`]), made once and reused by
+    /// every [`Decoder::decode`]: [`decode_footprint`] is what it holds.
+    pub fn decoder<'a>(&'a self, planes: &'a GpuPlanes, queries: usize) -> Result<Decoder<'a>, GpuError> {
+        self.check_planes(planes)?;
+        let c = self.config.c_dim;
+        let chunk = self.chunk.min(queries).max(1);
         let g = &self.gpu;
-        let chunk = self.chunk.min(queries.len());
-        let scope = g.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let q_buf = self.buf("queries", 3 * chunk)?;
         let f_buf = self.buf("features", c * chunk)?;
         let l_buf = self.buf("logits", chunk)?;
         let params = g.uniform("decode params", &DecParams::default());
         use decoder_at as at;
-        let bg = g.bind_at(
+        let bind = g.bind_at(
             &self.pipes.decode,
             &[
                 (at::PRM, &params),
@@ -818,53 +831,9 @@ impl GpuNet {
                 (at::LOGITS, &l_buf),
             ],
         );
-        let mut result = Ok(());
-        for part in queries.chunks(chunk) {
-            let m = part.len();
-            let p = DecParams {
-                n: m as u32,
-                reso: cfg.reso as u32,
-                divisor: cfg.plane_divisor(),
-                uv_max: UV_MAX,
-                n_blocks: cfg.n_blocks_dec as u32,
-                hb: cfg.h_dec.div_ceil(4) as u32,
-                cb: cfg.c_dim.div_ceil(4) as u32,
-                _pad: 0,
-            };
-            g.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
-            g.queue.write_buffer(&q_buf, 0, bytemuck::cast_slice(part));
-            let mut enc = g.device.create_command_encoder(&Default::default());
-            // Two queries per invocation.
-            let groups = match g.dispatch_linear(m.div_ceil(2) as u64, WG) {
-                Ok(gr) => gr,
-                Err(e) => {
-                    result = Err(e);
-                    break;
-                }
-            };
-            g.encode_pass(&mut enc, &self.pipes.decode, &bg, groups);
-            g.queue.submit([enc.finish()]);
-            match g.read::<f32>(&f_buf, m * c).await {
-                Ok(v) => features.extend_from_slice(&v),
-                Err(e) => {
-                    result = Err(e);
-                    break;
-                }
-            }
-            match g.read::<f32>(&l_buf, m).await {
-                Ok(v) => logits.extend_from_slice(&v),
-                Err(e) => {
-                    result = Err(e);
-                    break;
-                }
-            }
-        }
-        if let Some(e) = scope.pop().await {
-            return Err(GpuError::Kernel(format!("decoding: {e}")));
-        }
-        result.map(|_| (features, logits))
+        let staging = g.readback((4 * c * chunk) as u64);
+        Ok(Decoder { net: self, chunk, q_buf, f_buf, l_buf, params, bind, staging })
     }
-
     /// [`GpuNet::encode`], blocking (native only).
     #[cfg(not(target_arch = "wasm32"))]
     pub fn encode_blocking(&self, points: &[[f32; 3]]) -> Result<GpuPlanes, GpuError> {
@@ -886,5 +855,79 @@ impl GpuNet {
     /// Waits until submitted work is done (natively; on the web the browser drives it).
     pub fn wait(&self) {
         self.gpu.poll_wait();
+    }
+}
+
+/// A decode of one set of planes, its buffers made once ([`GpuNet::decoder`]).
+pub struct Decoder<'a> {
+    net: &'a GpuNet,
+    chunk: usize,
+    q_buf: wgpu::Buffer,
+    f_buf: wgpu::Buffer,
+    l_buf: wgpu::Buffer,
+    params: wgpu::Buffer,
+    bind: wgpu::BindGroup,
+    staging: crate::gpu::Readback,
+}
+
+impl Decoder<'_> {
+    /// Queries per submission.
+    pub fn chunk_queries(&self) -> usize {
+        self.chunk
+    }
+
+    /// Queries (normalised coordinates) → (features `Q × c_dim`, row-major; logits `Q`).
+    pub async fn decode(&self, queries: &[[f32; 3]]) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
+        let (net, g) = (self.net, &self.net.gpu);
+        let cfg = &net.config;
+        let c = cfg.c_dim;
+        let mut features = Vec::with_capacity(queries.len() * c);
+        let mut logits = Vec::with_capacity(queries.len());
+        let scope = g.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut result = Ok(());
+        for part in queries.chunks(self.chunk) {
+            let m = part.len();
+            let p = DecParams {
+                n: m as u32,
+                reso: cfg.reso as u32,
+                divisor: cfg.plane_divisor(),
+                uv_max: UV_MAX,
+                n_blocks: cfg.n_blocks_dec as u32,
+                hb: cfg.h_dec.div_ceil(4) as u32,
+                cb: cfg.c_dim.div_ceil(4) as u32,
+                _pad: 0,
+            };
+            g.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&p));
+            g.queue.write_buffer(&self.q_buf, 0, bytemuck::cast_slice(part));
+            let mut enc = g.device.create_command_encoder(&Default::default());
+            // Two queries per invocation.
+            let groups = match g.dispatch_linear(m.div_ceil(2) as u64, WG) {
+                Ok(gr) => gr,
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            };
+            g.encode_pass(&mut enc, &net.pipes.decode, &self.bind, groups);
+            g.queue.submit([enc.finish()]);
+            match g.read_via::<f32>(&self.staging, &self.f_buf, m * c).await {
+                Ok(v) => features.extend_from_slice(&v),
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+            match g.read_via::<f32>(&self.staging, &self.l_buf, m).await {
+                Ok(v) => logits.extend_from_slice(&v),
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        if let Some(e) = scope.pop().await {
+            return Err(GpuError::Kernel(format!("decoding: {e}")));
+        }
+        result.map(|_| (features, logits))
     }
 }

@@ -17,6 +17,6 @@ pub mod gpu;
 mod json;
 pub mod weights;
 
-pub use gpu::{GpuNet, GpuPlanes};
+pub use gpu::{Decoder, GpuNet, GpuPlanes};
 pub use geometry::{cell_index, plane_uv, Cells, Planes, PLANES, UV_MAX};
 pub use weights::{NetConfig, NetError, Weights, ENCODER_BLOCKS, FORMAT, PRIOR};

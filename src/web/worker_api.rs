@@ -112,6 +112,7 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
             Stage::Meshing { evaluated, expected } => {
                 ("meshing", vec![("evaluated", *evaluated as f64), ("expected", *expected as f64)])
             }
+            Stage::Tile { done, of } => ("tiles", vec![("done", *done as f64), ("of", *of as f64)]),
             Stage::Done => ("done", vec![]),
         };
         set(&p, "stage", stage);
@@ -127,7 +128,7 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
             }
         }
     };
-    let result = engine.reconstruct(&parsed.cloud, &opts.settings, &mut report).await;
+    let result = crate::scene::reconstruct_auto(&engine, &parsed.cloud, &opts.settings, parsed.units_guess().units, &mut report).await;
     if let Some(trouble) = take_trouble() {
         return Err(error("GpuError", &trouble));
     }

@@ -183,7 +183,11 @@ fn info(args: &[String]) -> Result<(), Failure> {
     if scan.comments.len() > COMMENTS_SHOWN {
         say!("comment:    … and {} more comments", scan.comments.len() - COMMENTS_SHOWN);
     }
-    preflight(cloud, &settings);
+    match nkrr::scene::decide(cloud, &settings, scan.units_guess().units) {
+        // A scene runs tile by tile, each tile through the network as one small cloud.
+        Some(tiles) => say!("scene:      will {}; each tile holds at most {} points", tiles.reason, tiles.tiles.iter().map(|t| t.1).max().unwrap_or(0)),
+        None => preflight(cloud, &settings),
+    }
     for w in scan.warnings() {
         say!("warning:    {w}");
     }
@@ -275,6 +279,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             Stage::Pairs => "sampling and labelling training pairs".to_string(),
             Stage::Tuning { step, of, loss } => format!("tuning: step {step}/{of}, loss {loss:.6}"),
             Stage::Meshing { evaluated, expected } => format!("meshing: {evaluated} field evaluations (of about {expected})"),
+            Stage::Tile { done, of } => format!("tiles: {done} of {of}"),
             Stage::Done => "done".to_string(),
         };
         if line != last {
@@ -283,7 +288,8 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         }
         true
     };
-    let rec = pollster::block_on(engine.reconstruct(&parsed.cloud, &settings, &mut report))
+    let units = parsed.units_guess().units;
+    let rec = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &parsed.cloud, &settings, units, &mut report))
         .map_err(|e| fail(format!("{input}: {e}")))?;
     if let Some(t) = &rec.tuning {
         tell!(

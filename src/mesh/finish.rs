@@ -1,0 +1,51 @@
+//! The finishing stage, in the network's unit cube against the points it saw: components the
+//! points do not support go, then the last fit to the points, the trim of what was never
+//! scanned and the simplification, each when the settings ask for it (the plan's "finish").
+
+use super::fit::{fit_cloud, FitReport};
+use super::simplify::{simplify, SimplifyReport, Target};
+use super::trim::{trim, TrimReport};
+use super::types::Mesh;
+use crate::gpu::now;
+use crate::settings::Settings;
+
+/// What each finishing step did (None: not asked for).
+pub struct Finished {
+    pub fit: Option<FitReport>,
+    pub trim: Option<TrimReport>,
+    pub simplify: Option<SimplifyReport>,
+}
+
+/// Finishes `mesh` against `points` as `settings` ask, adding what it says to `notices` and
+/// each step's seconds to `timings`.
+pub fn finish(mesh: &mut Mesh, points: &[[f32; 3]], settings: &Settings, notices: &mut Vec<String>, timings: &mut Vec<(&'static str, f64)>) -> Finished {
+    if let Some(share) = settings.min_support {
+        let r = super::remove_unsupported_components(mesh, points, share as f32);
+        notices.extend(r.unsupported_notice(share));
+    }
+    let fit = settings.fit.then(|| {
+        let t = now();
+        let r = fit_cloud(mesh, points, settings.fit_noise);
+        timings.push(("fit", now() - t));
+        notices.extend(r.notice());
+        r
+    });
+    let trim = settings.trim.map(|factor| {
+        let t = now();
+        let r = trim(mesh, points, factor);
+        timings.push(("trim", now() - t));
+        notices.push(r.notice(factor));
+        r
+    });
+    // After the trim, so that the simplifier keeps the trimmed border where it is; before the
+    // colours, which then go to the vertices that are left.
+    let target = Target { triangles: settings.triangles, max_error: settings.max_error };
+    let simplify = (target != Default::default()).then(|| {
+        let t = now();
+        let r = simplify(mesh, &target);
+        timings.push(("simplify", now() - t));
+        notices.push(r.notice());
+        r
+    });
+    Finished { fit, trim, simplify }
+}
