@@ -216,6 +216,9 @@ pub async fn reconstruct(
     progress: &mut dyn FnMut(&Stage) -> bool,
 ) -> Result<Reconstruction, PipelineError> {
     let mut notices = vec![format!("nkrr will {}", tiles.reason)];
+    if settings.resolution != Settings::default().resolution {
+        notices.push(format!("--resolution {} is for one object: a scene's mesh cell follows its tiles ({:.3} of the cloud's units; --detail sets it)", settings.resolution, tiles.cell));
+    }
     if settings.method == Method::Nkrr {
         notices.push("the tiles use the network's field: the kernel regression per tile is not built yet (--method network says so)".into());
     }
@@ -301,10 +304,13 @@ pub async fn reconstruct(
     if mesh.indices.is_empty() {
         return Err(PipelineError::NoSurface { evaluations, field_max: 0.0, method: Method::Network });
     }
-    if let Some(factor) = settings.trim {
-        let r = crate::mesh::trim(&mut mesh, &cloud.positions, factor);
-        notices.push(r.notice(factor));
-    }
+    // The same finish as one object's (the last fit, the trim, the simplification), against
+    // all the scene's points: its steps measure in point spacings, whatever the units.
+    // A piece's support is measured against a tile's worth of points, not the scene's: a chair
+    // is a small share of a street, and must stay.
+    let share = |s: f64| s * (TILE_POINTS as f64 / cloud.len().max(1) as f64).min(1.0);
+    let finish = Settings { min_support: settings.min_support.map(share), ..settings.clone() };
+    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, &mut notices, &mut timings);
     if settings.colors && cloud.colors.is_some() {
         crate::mesh::colour::transfer(&mut mesh, cloud, crate::mesh::colour::DEFAULT_K);
     }
@@ -314,9 +320,9 @@ pub async fn reconstruct(
     Ok(Reconstruction {
         mesh,
         origin,
-        fit: None,
-        trim: None,
-        simplify: None,
+        fit: finished.fit,
+        trim: finished.trim,
+        simplify: finished.simplify,
         notices,
         warnings: Vec::new(),
         extract: ExtractStats { refine, triangles_extracted, removal, gpu: false },
