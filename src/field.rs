@@ -132,7 +132,7 @@ impl Field {
     /// What evaluates the field on `planes` in calls of at most `queries` points (the unit
     /// cube): the decoder's buffers and, for the regression on the GPU, the predictor's with
     /// its coefficients, made here once for every call (the mesher makes hundreds).
-    pub fn evaluator<'a>(&'a self, net: &'a GpuNet, planes: &'a GpuPlanes, queries: usize) -> Result<Evaluator<'a>, String> {
+    pub fn evaluator<'a>(&'a self, net: &'a GpuNet, planes: &GpuPlanes, queries: usize) -> Result<Evaluator<'a>, String> {
         let decoder = net.decoder(planes, queries).map_err(|e| e.to_string())?;
         let predictor = match self {
             Field::Network => None,
@@ -150,6 +150,12 @@ pub struct Evaluator<'a> {
 }
 
 impl Evaluator<'_> {
+    /// Evaluates on `planes` from now on (a scene's next tile, for the same field), keeping
+    /// every buffer.
+    pub fn rebind(&mut self, planes: &GpuPlanes) -> Result<(), String> {
+        self.decoder.rebind(planes).map_err(|e| e.to_string())
+    }
+
     /// The field at `points`, decoding their features from the planes.
     pub async fn evaluate(&self, points: &[[f32; 3]]) -> Result<Vec<f32>, String> {
         let (features, logits) = self.decoder.decode(points).await.map_err(|e| e.to_string())?;

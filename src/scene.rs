@@ -244,6 +244,9 @@ pub async fn reconstruct(
     // Σ w·f and Σ w per band node.
     let mut blend: HashMap<u64, (f32, f32)> = HashMap::new();
     let mut evaluations = 0u64;
+    // The tiles evaluate the network's field (the regression per tile is not built yet).
+    let network = Field::Network;
+    let mut evaluator: Option<crate::field::Evaluator> = None;
     let of = tiles.tiles.len();
     for (done, ((tile, _), ids)) in tiles.tiles.iter().zip(&mut members).enumerate() {
         if !progress(&Stage::Tile { done, of }) {
@@ -269,11 +272,18 @@ pub async fn reconstruct(
                 local([0, 1, 2].map(|a| tiles.origin[a] + n[a] as f64 * tiles.cell))
             })
             .collect();
-        let field = Field::Network;
-        let evaluator = field.evaluator(&engine.net, &planes, EVALUATION_CHUNK).map_err(|e| PipelineError::Mesh(ExtractError::Field(FieldError(e))))?;
+        let field_error = |e| PipelineError::Mesh(ExtractError::Field(FieldError(e)));
+        // One evaluator for every tile: its buffers made at the first, rebound to each tile's planes.
+        let evaluator = match &mut evaluator {
+            Some(ev) => {
+                ev.rebind(&planes).map_err(field_error)?;
+                ev
+            }
+            None => evaluator.insert(network.evaluator(&engine.net, &planes, EVALUATION_CHUNK).map_err(field_error)?),
+        };
         let mut values = Vec::with_capacity(queries.len());
         for chunk in queries.chunks(EVALUATION_CHUNK) {
-            values.extend(evaluator.evaluate(chunk).await.map_err(|e| PipelineError::Mesh(ExtractError::Field(FieldError(e))))?);
+            values.extend(evaluator.evaluate(chunk).await.map_err(field_error)?);
         }
         evaluations += values.len() as u64;
         for (&k, &v) in nodes.iter().zip(&values) {

@@ -69,6 +69,7 @@ fn tiles_blend_into_one_mesh_without_cracks_and_keep_the_object() {
     let gpu = nkrr::gpu::Gpu::new_blocking().expect("a wgpu adapter (lavapipe will do)");
     let engine = pollster::block_on(Engine::new(gpu)).unwrap();
     let mut tiles_seen = Vec::new();
+    let before = engine.gpu.allocations();
     let rec = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &room, &s, None, &mut |st| {
         if let nkrr::pipeline::Stage::Tile { done, of } = st {
             tiles_seen.push((*done, *of));
@@ -76,7 +77,14 @@ fn tiles_blend_into_one_mesh_without_cracks_and_keep_the_object() {
         true
     }))
     .unwrap();
+    let made = engine.gpu.allocations().since(&before);
     assert!(rec.notices[0].contains("as a scene in"), "{:?}", rec.notices);
+    // Per tile, only the encoder's buffers are made: the decoder's are made once and rebound.
+    let one = engine.gpu.allocations();
+    pollster::block_on(engine.net.encode(&[[0.0, 0.0, 0.0], [0.1, 0.2, 0.3], [0.2, -0.1, 0.0]])).unwrap();
+    let per_encode = engine.gpu.allocations().since(&one).buffers;
+    let tiles = plan.tiles.len() as u64;
+    assert!(made.buffers <= tiles * per_encode + 8, "{} buffers for {tiles} tiles, {per_encode} per encode", made.buffers);
     assert_eq!(tiles_seen.first(), Some(&(0, plan.tiles.len())));
     assert_eq!(tiles_seen.last(), Some(&(plan.tiles.len(), plan.tiles.len())));
     let mesh = &rec.mesh;

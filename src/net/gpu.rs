@@ -810,7 +810,7 @@ impl GpuNet {
     /// The buffers, bind group and staging buffer for decoding `planes` in submissions of at
     /// most `queries` queries (and at most [`GpuNet::chunk_queries`]), made once and reused by
     /// every [`Decoder::decode`]: [`decode_footprint`] is what it holds.
-    pub fn decoder<'a>(&'a self, planes: &'a GpuPlanes, queries: usize) -> Result<Decoder<'a>, GpuError> {
+    pub fn decoder<'a>(&'a self, planes: &GpuPlanes, queries: usize) -> Result<Decoder<'a>, GpuError> {
         self.check_planes(planes)?;
         let c = self.config.c_dim;
         let chunk = self.chunk.min(queries).max(1);
@@ -874,6 +874,25 @@ impl Decoder<'_> {
     /// Queries per submission.
     pub fn chunk_queries(&self) -> usize {
         self.chunk
+    }
+
+    /// Decodes from `planes` from now on (a scene's next tile): one new bind group, the
+    /// buffers kept.
+    pub fn rebind(&mut self, planes: &GpuPlanes) -> Result<(), GpuError> {
+        self.net.check_planes(planes)?;
+        use decoder_at as at;
+        self.bind = self.net.gpu.bind_at(
+            &self.net.pipes.decode,
+            &[
+                (at::PRM, &self.params),
+                (at::W, &self.net.dec_w),
+                (at::PLANES, &planes.buffer),
+                (at::QUERIES, &self.q_buf),
+                (at::FEATURES, &self.f_buf),
+                (at::LOGITS, &self.l_buf),
+            ],
+        );
+        Ok(())
     }
 
     /// Queries (normalised coordinates) → (features `Q × c_dim`, row-major; logits `Q`).
