@@ -71,7 +71,8 @@ impl Removal {
                 self.components_removed,
                 self.components,
                 self.triangles_removed,
-                100.0 * share
+                // Three decimals at most: a scene's share is a tile's worth of points, 1/12 of 1 %.
+                (100_000.0 * share).round() / 1000.0
             )
         })
     }
