@@ -25,8 +25,10 @@ use crate::pipeline::{Engine, PipelineError, Reconstruction, Stage};
 use crate::settings::{Method, Settings, Tiles};
 use crate::units::Units;
 
-/// A cloud whose longest side reaches this many metres is a scene: `tiles auto` cuts it.
-pub const SCENE_EXTENT_M: f64 = 2.5;
+/// A cloud whose longest side reaches this many metres is a scene: `tiles auto` cuts it. Objects
+/// up to a car or a statue (a 4 m closed ellipsoid in the browser tests) keep the one-cube path;
+/// a smaller room needs `--tiles on`.
+pub const SCENE_EXTENT_M: f64 = 5.0;
 /// About this many points in a tile's core, at the scan's density.
 pub const TILE_POINTS: usize = 10_000;
 /// Mesh cells along a tile's core: the grid's cell is the tile's size over this.

@@ -482,7 +482,7 @@ pub static TABLE: &[Setting] = &[
         key: "tiles",
         flag: "--tiles",
         label: "Scene tiles",
-        help: "reconstruct in overlapping tiles of about an object's worth of points, blended into one mesh (auto: when the cloud spans 2.5 m or more, in metres per --units)",
+        help: "reconstruct in overlapping tiles of about an object's worth of points, blended into one mesh (auto: when the cloud spans 5 m or more, in metres per --units; on for a smaller room)",
         kind: Kind::Choice(&[("auto", "auto"), ("on", "on"), ("off", "off (one object)")]),
         default: Value::Choice("auto"),
         get: |s| Value::Choice(match s.tiles {

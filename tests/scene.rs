@@ -43,28 +43,30 @@ fn corner() -> (PointCloud, [f32; 3], f32) {
 #[test]
 fn a_scene_is_tiled_when_it_spans_metres_and_an_object_is_not() {
     let (room, _, _) = corner();
-    let s = Settings::default();
-    let plan = nkrr::scene::decide(&room, &s, None).expect("a 3 m cloud is a scene");
+    // Under auto a 3 m cloud is one object (as a 4 m closed ellipsoid must stay); scaled to 6 m
+    // it is a scene; tiles on cuts either.
+    assert!(nkrr::scene::decide(&room, &Settings::default(), None).is_none());
+    let big = PointCloud { positions: room.positions.iter().map(|p| p.map(|c| c * 2.0)).collect(), ..Default::default() };
+    assert!(nkrr::scene::decide(&big, &Settings::default(), None).unwrap().reason.contains("6.0 m"));
+    let s = Settings { tiles: Tiles::On, ..Settings::default() };
+    let plan = nkrr::scene::decide(&room, &s, None).expect("tiles on");
     assert!(plan.tiles.len() >= 4, "{} tiles", plan.tiles.len());
-    assert!(plan.reason.contains("3.0 m"), "{}", plan.reason);
+    assert!(plan.reason.contains("asked for"), "{}", plan.reason);
     assert!(nkrr::scene::decide(&room, &Settings { tiles: Tiles::Off, ..s.clone() }, None).is_none());
-    // Scaled down a thousand times it is 3 mm across: one object, unless asked.
-    let small = PointCloud { positions: room.positions.iter().map(|p| p.map(|c| c / 1000.0)).collect(), ..Default::default() };
-    assert!(nkrr::scene::decide(&small, &s, None).is_none());
-    assert!(nkrr::scene::decide(&small, &Settings { tiles: Tiles::On, ..s.clone() }, None).is_some());
+    let auto = Settings::default();
     // 1500 units across: a scene when they are metres, one object of 1.5 m when the file
     // suggests millimetres or --units says so.
     let mm = PointCloud { positions: room.positions.iter().map(|p| p.map(|c| c * 500.0)).collect(), ..Default::default() };
-    assert!(nkrr::scene::decide(&mm, &s, None).is_some());
-    assert!(nkrr::scene::decide(&mm, &s, Some(nkrr::units::Units::Millimetres)).is_none());
-    let by_flag = Settings { units: Some(nkrr::units::Units::Millimetres), ..s.clone() };
+    assert!(nkrr::scene::decide(&mm, &auto, None).is_some());
+    assert!(nkrr::scene::decide(&mm, &auto, Some(nkrr::units::Units::Millimetres)).is_none());
+    let by_flag = Settings { units: Some(nkrr::units::Units::Millimetres), ..auto.clone() };
     assert!(nkrr::scene::decide(&mm, &by_flag, Some(nkrr::units::Units::Metres)).is_none());
 }
 
 #[test]
 fn tiles_blend_into_one_mesh_without_cracks_and_keep_the_object() {
     let (room, centre, r) = corner();
-    let s = Settings { method: Method::Network, ..Settings::default() };
+    let s = Settings { method: Method::Network, tiles: Tiles::On, ..Settings::default() };
     let plan = nkrr::scene::decide(&room, &s, None).unwrap();
     let gpu = nkrr::gpu::Gpu::new_blocking().expect("a wgpu adapter (lavapipe will do)");
     let engine = pollster::block_on(Engine::new(gpu)).unwrap();

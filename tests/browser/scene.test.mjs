@@ -32,6 +32,8 @@ test('a small room reconstructs in tiles: progress per tile, the scene notice, a
     await page.setInputFiles('#file-input', ROOM);
     await page.waitForFunction(() => document.body.dataset.loaded === 'room-small.laz', null, { timeout: 60_000 });
     await page.selectOption('#method', 'network');
+    // 4 m across: a small room is tiled when asked (auto starts at 5 m).
+    await page.selectOption('#tiles', 'on');
     // Every stage the page shows, in order.
     await page.evaluate(() => {
       window.__stages = [];
