@@ -11,7 +11,8 @@ if [ ! -x .venv-peers/bin/python ]; then
     "$PY" -m venv .venv-peers
 fi
 want=$(sed -n 's/^open3d-cpu==//p' tests/peers/requirements.txt)
-have=$(.venv-peers/bin/python -c 'import open3d; print(open3d.__version__)' 2>/dev/null || true)
+# laspy and lazrs too: scripts/scene_spsr.py reads LAZ scenes.
+have=$(.venv-peers/bin/python -c 'import open3d, laspy, lazrs; print(open3d.__version__)' 2>/dev/null || true)
 if [ "$have" = "$want" ]; then
     log "open3d $have present"
 else
