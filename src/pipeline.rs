@@ -30,6 +30,11 @@ pub enum Stage {
     Meshing { evaluated: usize, expected: usize },
     /// A scene's tiles ([`crate::scene`]): `done` of `of` reconstructed.
     Tile { done: usize, of: usize },
+    /// A scene's triangles that are final before the finish stage (the blend around them is
+    /// complete), to show while the rest is computed: in the mesh's coordinates (as
+    /// [`Reconstruction::mesh`]), indices into this piece's own `positions`. The finish (last
+    /// fit, trim, simplification) may still move or drop them.
+    Meshed { positions: Vec<[f32; 3]>, indices: Vec<u32> },
     Done,
 }
 
@@ -112,6 +117,8 @@ pub struct Reconstruction {
     /// engine held before the reconstruction, named as the plan names its stages; empty where
     /// the device does not count its memory (see [`crate::gpu::ledger`]).
     pub gpu_peaks: Vec<(&'static str, u64)>,
+    /// A scene's tiles and its blend's size ([`crate::scene`]); None for one object.
+    pub scene: Option<crate::scene::SceneReport>,
 }
 
 impl Reconstruction {
@@ -276,6 +283,6 @@ impl Engine {
         let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
         (progress.borrow_mut())(&Stage::Done);
         let crate::mesh::finish::Finished { fit, trim, simplify } = finished;
-        Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks })
+        Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None })
     }
 }

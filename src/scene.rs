@@ -12,23 +12,32 @@
 //! from inside, a facade, terrain) is not closed over what was never scanned, and nothing is
 //! invented at the scene's edge.
 //!
-//! Memory: the points once, each tile's points and field (one tile at a time), and the blended
-//! values of the band's nodes, which grow with the scanned surface, not with the volume.
+//! Memory: the points once, each tile's points and field (one tile at a time), the blended
+//! values of the band's nodes behind the sweep's front (a cube's nodes are meshed and dropped
+//! once the tiles around it are done, see [`Sweep`]), and the mesh.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use crate::cloud::{subsample, PointCloud};
 use crate::field::{Field, EVALUATION_CHUNK};
 use crate::gpu::now;
-use crate::mesh::{ActiveCells, ExtractError, ExtractStats, FieldError};
+use crate::mesh::refine::KeyMap;
+use crate::mesh::{ActiveCells, ExtractError, ExtractStats, FieldError, Mesh};
 use crate::pipeline::{Engine, PipelineError, Reconstruction, Stage};
 use crate::settings::{Method, Settings, Tiles};
 use crate::units::Units;
 
-/// A cloud whose longest side reaches this many metres is a scene: `tiles auto` cuts it. Objects
-/// up to a car or a statue (a 4 m closed ellipsoid in the browser tests) keep the one-cube path;
-/// a smaller room needs `--tiles on`.
+/// A cloud whose longest side reaches this many metres is a scene: `tiles auto` cuts it, when
+/// its metres are known ([`Scale::stated`]: LAS, E57, a file that states its units, or
+/// `--units`) or it has [`UNSTATED_SCENE_POINTS`]. Objects up to a car or a statue (a 4 m
+/// closed ellipsoid in the browser tests) keep the one-cube path; a smaller room needs
+/// `--tiles on`.
 pub const SCENE_EXTENT_M: f64 = 5.0;
+/// A cloud whose file does not state its units (PLY, text) is taken as a scene under `tiles
+/// auto` only with this many points: objects in such files come in any units, and a 10-unit
+/// cow of 10,000 points is one object (the eval clouds are), where a million points across
+/// 10 units is a scan of a room or more.
+pub const UNSTATED_SCENE_POINTS: usize = 500_000;
 /// About this many points in a tile's core, at the scan's density.
 pub const TILE_POINTS: usize = 10_000;
 /// Mesh cells along a tile's core: the grid's cell is the tile's size over this.
@@ -51,31 +60,57 @@ pub struct TilePlan {
     pub origin: [f64; 3],
     /// Cells along each axis of the cubic grid.
     pub resolution: u32,
-    /// The tiles holding points, in order (x fastest), and their core's point count.
+    /// The tiles holding points, in the sweep's order (along the longest side first), and
+    /// their core's point count.
     pub tiles: Vec<([i64; 3], usize)>,
     /// Why the cloud is tiled, and how, in a sentence.
     pub reason: String,
 }
 
+/// What a file says of its scale, for [`decide`]: from [`crate::units::UnitsGuess`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Scale {
+    /// The cloud's length unit as its file states or suggests it; `--units` overrides.
+    pub units: Option<Units>,
+    /// The file states its units (or its format fixes them): its size in metres is a fact.
+    pub stated: bool,
+}
+
+impl From<&crate::units::UnitsGuess> for Scale {
+    fn from(g: &crate::units::UnitsGuess) -> Self {
+        Scale { units: g.units, stated: g.stated }
+    }
+}
+
 /// Whether `cloud` is reconstructed in tiles under `settings`: `on`, `off`, or (`auto`) when
-/// its longest side in metres reaches [`SCENE_EXTENT_M`]; `units` is the cloud's length unit
-/// as its file states or suggests it ([`crate::io::scan_file::ScanFile::units_guess`]), which
-/// `--units` overrides; with neither, auto takes the numbers as metres. Returns the plan when
-/// it tiles.
-pub fn decide(cloud: &PointCloud, settings: &Settings, units: Option<Units>) -> Option<TilePlan> {
-    let to_m = settings.units.or(units).map_or(1.0, |u| u.metres());
-    let b = cloud.bounds()?;
-    let extent = (0..3).map(|a| (b.max[a] - b.min[a]) as f64).fold(0.0, f64::max);
+/// its longest side in metres reaches [`SCENE_EXTENT_M`] and its metres are known or it has
+/// [`UNSTATED_SCENE_POINTS`] (see [`Scale`]; with no units at all, auto takes the numbers as
+/// metres). Returns the plan when it tiles.
+pub fn decide(cloud: &PointCloud, settings: &Settings, scale: Scale) -> Option<TilePlan> {
+    decide_sample(&cloud.positions, 1.0, settings, scale)
+}
+
+/// [`decide`] from an even sample of a cloud in which each point stands for `weight` points
+/// (the page's preflight keeps a sample of the cloud it has shown).
+pub fn decide_sample(points: &[[f32; 3]], weight: f64, settings: &Settings, scale: Scale) -> Option<TilePlan> {
+    if points.is_empty() {
+        return None;
+    }
+    let to_m = settings.units.or(scale.units).map_or(1.0, |u| u.metres());
+    let (lo, hi) = bounds(points);
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    let known = scale.stated || settings.units.is_some();
+    let many = (points.len() as f64 * weight) as usize >= UNSTATED_SCENE_POINTS;
     let why = match settings.tiles {
         Tiles::Off => return None,
         Tiles::On => "tiles were asked for (--tiles on)".to_string(),
-        Tiles::Auto if extent * to_m >= SCENE_EXTENT_M => {
+        Tiles::Auto if extent * to_m >= SCENE_EXTENT_M && (known || many) => {
             format!("it spans {:.1} m, more than one object ({SCENE_EXTENT_M} m or more is a scene; --tiles off for one object)", extent * to_m)
         }
         Tiles::Auto => return None,
     };
     let detail = settings.detail.map(|m| m as f64 / to_m);
-    let mut plan = plan(&cloud.positions, detail);
+    let mut plan = plan_weighted(points, weight, detail);
     plan.reason = format!(
         "reconstruct the cloud as a scene in {} tiles of {:.2} m (cells of {:.1} cm): {why}",
         plan.tiles.len(),
@@ -85,11 +120,31 @@ pub fn decide(cloud: &PointCloud, settings: &Settings, units: Option<Units>) -> 
     Some(plan)
 }
 
+/// A sentence for a cloud that `tiles auto` keeps whole though it may be a scene: it spans
+/// [`SCENE_EXTENT_M`] or more in units its file does not state, with enough points for several
+/// tiles. None otherwise.
+pub fn hint(cloud: &PointCloud, settings: &Settings, scale: Scale) -> Option<String> {
+    if settings.tiles != Tiles::Auto || cloud.len() < 5 * TILE_POINTS || decide(cloud, settings, scale).is_some() {
+        return None;
+    }
+    let to_m = settings.units.or(scale.units).map_or(1.0, |u| u.metres());
+    let extent = cloud.bounds()?.longest_side() as f64 * to_m;
+    (extent >= SCENE_EXTENT_M).then(|| {
+        format!("the cloud spans {extent:.1} m if its units are metres, and is reconstructed as one object; if it is a room, a facade or a street, --tiles on reconstructs it in tiles")
+    })
+}
+
 /// Tiles for `points`: of `detail · TILE_CELLS` when a detail (cell size) is given, else the
 /// size at which the tiles holding points hold about [`TILE_POINTS`] each.
 pub fn plan(points: &[[f32; 3]], detail: Option<f64>) -> TilePlan {
+    plan_weighted(points, 1.0, detail)
+}
+
+/// [`plan`] for a sample in which each point stands for `weight` points.
+fn plan_weighted(points: &[[f32; 3]], weight: f64, detail: Option<f64>) -> TilePlan {
     let (lo, hi) = bounds(points);
     let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max).max(1e-9);
+    let stands_for = |n: usize| (n as f64 * weight).round() as usize;
     let size = match detail {
         Some(d) if d > 0.0 => d * TILE_CELLS as f64,
         _ => {
@@ -98,7 +153,7 @@ pub fn plan(points: &[[f32; 3]], detail: Option<f64>) -> TilePlan {
             let mut s = extent * 1.0001;
             while s > extent / 256.0 {
                 let counts = count_tiles(points, lo, s);
-                if points.len() / counts.len().max(1) <= TILE_POINTS {
+                if stands_for(points.len()) / counts.len().max(1) <= TILE_POINTS {
                     break;
                 }
                 s /= 1.25;
@@ -112,8 +167,14 @@ pub fn plan(points: &[[f32; 3]], detail: Option<f64>) -> TilePlan {
     let margin = (BAND + 1) as f64 * cell;
     let origin = lo.map(|c| c - margin);
     let resolution = (((extent + 2.0 * margin) / cell).ceil() as u32).max(1) + 1;
-    let mut tiles: Vec<([i64; 3], usize)> = count_tiles(points, origin, size).into_iter().collect();
-    tiles.sort_by_key(|(t, _)| (t[2], t[1], t[0]));
+    let mut tiles: Vec<([i64; 3], usize)> = count_tiles(points, origin, size).into_iter().map(|(t, n)| (t, stands_for(n))).collect();
+    // The sweep runs along the axis with the most tiles, then the next: the front of
+    // unfinished cubes (what the blend holds, see [`Sweep`]) is then a slice across the
+    // scene's shortest sides.
+    let span = |a: usize| tiles.iter().map(|(t, _)| t[a]).max().unwrap_or(0) - tiles.iter().map(|(t, _)| t[a]).min().unwrap_or(0);
+    let mut axes = [0, 1, 2];
+    axes.sort_by_key(|&a| std::cmp::Reverse(span(a)));
+    tiles.sort_by_key(|(t, _)| (t[axes[0]], t[axes[1]], t[axes[2]]));
     TilePlan { size, cell, origin, resolution, tiles, reason: String::new() }
 }
 
@@ -155,6 +216,34 @@ impl TilePlan {
             .product()
     }
 
+    /// The points of each tile (in [`TilePlan::tiles`]' order): those in its cube with the
+    /// overlap, so a point near a border goes to every tile that weighs it.
+    pub fn members(&self, points: &[[f32; 3]]) -> Vec<Vec<u32>> {
+        let o = OVERLAP * self.size;
+        let index: HashMap<[i64; 3], usize> = self.tiles.iter().enumerate().map(|(i, (t, _))| (*t, i)).collect();
+        let mut members: Vec<Vec<u32>> = vec![Vec::new(); self.tiles.len()];
+        for (i, p) in points.iter().enumerate() {
+            let lo = [0, 1, 2].map(|a| ((p[a] as f64 - self.origin[a] - o) / self.size).floor() as i64);
+            let hi = [0, 1, 2].map(|a| ((p[a] as f64 - self.origin[a] + o) / self.size).floor() as i64);
+            for z in lo[2]..=hi[2] {
+                for y in lo[1]..=hi[1] {
+                    for x in lo[0]..=hi[0] {
+                        if let Some(&t) = index.get(&[x, y, z]) {
+                            members[t].push(i as u32);
+                        }
+                    }
+                }
+            }
+        }
+        members
+    }
+
+    /// The most points a tile takes in (its cube with the overlap), for `points` of which each
+    /// stands for `weight` points.
+    pub fn largest_tile(&self, points: &[[f32; 3]], weight: f64) -> usize {
+        self.members(points).iter().map(|m| (m.len() as f64 * weight).round() as usize).max().unwrap_or(0)
+    }
+
     fn node_key(&self, n: [i64; 3]) -> u64 {
         let r1 = self.resolution as u64 + 1;
         n[0] as u64 + r1 * (n[1] as u64 + r1 * n[2] as u64)
@@ -193,18 +282,22 @@ impl TilePlan {
     }
 }
 
-/// Reconstructs `cloud` (whose length unit is `units`, see [`decide`]) the way [`decide`] picks: in tiles when it is a scene, else whole
+/// Reconstructs `cloud` (whose file says `scale` of its size, see [`decide`]) the way [`decide`] picks: in tiles when it is a scene, else whole
 /// ([`Engine::reconstruct`]). The CLI, the page and the JS API all come through here.
 pub async fn reconstruct_auto(
     engine: &Engine,
     cloud: &PointCloud,
     settings: &Settings,
-    units: Option<Units>,
+    scale: Scale,
     progress: &mut dyn FnMut(&Stage) -> bool,
 ) -> Result<Reconstruction, PipelineError> {
-    match decide(cloud, settings, units) {
+    match decide(cloud, settings, scale) {
         Some(tiles) => reconstruct(engine, cloud, settings, &tiles, progress).await,
-        None => engine.reconstruct(cloud, settings, progress).await,
+        None => {
+            let mut rec = engine.reconstruct(cloud, settings, progress).await?;
+            rec.notices.extend(hint(cloud, settings, scale));
+            Ok(rec)
+        }
     }
 }
 
@@ -225,26 +318,11 @@ pub async fn reconstruct(
         notices.push("the tiles use the network's field: the kernel regression per tile is not built yet (--method network says so)".into());
     }
     let t_all = now();
-    // Each point goes to every tile whose cube (with its overlap) holds it.
     let o = OVERLAP * tiles.size;
-    let index: HashMap<[i64; 3], usize> = tiles.tiles.iter().enumerate().map(|(i, (t, _))| (*t, i)).collect();
-    let mut members: Vec<Vec<u32>> = vec![Vec::new(); tiles.tiles.len()];
-    for (i, p) in cloud.positions.iter().enumerate() {
-        let lo = [0, 1, 2].map(|a| ((p[a] as f64 - tiles.origin[a] - o) / tiles.size).floor() as i64);
-        let hi = [0, 1, 2].map(|a| ((p[a] as f64 - tiles.origin[a] + o) / tiles.size).floor() as i64);
-        for z in lo[2]..=hi[2] {
-            for y in lo[1]..=hi[1] {
-                for x in lo[0]..=hi[0] {
-                    if let Some(&t) = index.get(&[x, y, z]) {
-                        members[t].push(i as u32);
-                    }
-                }
-            }
-        }
-    }
+    let mut members = tiles.members(&cloud.positions);
 
-    // Σ w·f and Σ w per band node.
-    let mut blend: HashMap<u64, (f32, f32)> = HashMap::new();
+    // The blended field, meshed cube by cube behind the sweep (see [`Sweep`]).
+    let mut sweep = Sweep::new(tiles);
     let mut evaluations = 0u64;
     // The tiles evaluate the network's field (the regression per tile is not built yet).
     let network = Field::Network;
@@ -255,59 +333,56 @@ pub async fn reconstruct(
             return Err(PipelineError::Cancelled);
         }
         let ids = std::mem::take(ids);
-        if ids.len() < MIN_TILE_POINTS {
-            continue;
-        }
-        let points: Vec<[f32; 3]> = ids.iter().map(|&i| cloud.positions[i as usize]).collect();
-        let seen = subsample(&points, settings.max_points, 1);
-        // The tile's cube with its overlap fills the network's unit cube.
-        let centre = [0, 1, 2].map(|a| tiles.origin[a] + (tile[a] as f64 + 0.5) * tiles.size);
-        let scale = tiles.size + 2.0 * o;
-        let local = |p: [f64; 3]| [0, 1, 2].map(|a| ((p[a] - centre[a]) / scale) as f32);
-        let normalised: Vec<[f32; 3]> = seen.iter().map(|p| local(p.map(|v| v as f64))).collect();
-        let planes = engine.net.encode(&normalised).await?;
-        let nodes = tiles.band_nodes(*tile, &points);
-        let queries: Vec<[f32; 3]> = nodes
-            .iter()
-            .map(|&k| {
-                let n = tiles.node_of_key(k);
-                local([0, 1, 2].map(|a| tiles.origin[a] + n[a] as f64 * tiles.cell))
-            })
-            .collect();
-        let field_error = |e| PipelineError::Mesh(ExtractError::Field(FieldError(e)));
-        // One evaluator for every tile: its buffers made at the first, rebound to each tile's planes.
-        let evaluator = match &mut evaluator {
-            Some(ev) => {
-                ev.rebind(&planes).map_err(field_error)?;
-                ev
+        if ids.len() >= MIN_TILE_POINTS {
+            let points: Vec<[f32; 3]> = ids.iter().map(|&i| cloud.positions[i as usize]).collect();
+            let seen = subsample(&points, settings.max_points, 1);
+            // The tile's cube with its overlap fills the network's unit cube.
+            let centre = [0, 1, 2].map(|a| tiles.origin[a] + (tile[a] as f64 + 0.5) * tiles.size);
+            let scale = tiles.size + 2.0 * o;
+            let local = |p: [f64; 3]| [0, 1, 2].map(|a| ((p[a] - centre[a]) / scale) as f32);
+            let normalised: Vec<[f32; 3]> = seen.iter().map(|p| local(p.map(|v| v as f64))).collect();
+            let planes = engine.net.encode(&normalised).await?;
+            let nodes = tiles.band_nodes(*tile, &points);
+            let queries: Vec<[f32; 3]> = nodes
+                .iter()
+                .map(|&k| {
+                    let n = tiles.node_of_key(k);
+                    local([0, 1, 2].map(|a| tiles.origin[a] + n[a] as f64 * tiles.cell))
+                })
+                .collect();
+            let field_error = |e| PipelineError::Mesh(ExtractError::Field(FieldError(e)));
+            // One evaluator for every tile: its buffers made at the first, rebound to each tile's planes.
+            let evaluator = match &mut evaluator {
+                Some(ev) => {
+                    ev.rebind(&planes).map_err(field_error)?;
+                    ev
+                }
+                None => evaluator.insert(network.evaluator(&engine.net, &planes, EVALUATION_CHUNK).map_err(field_error)?),
+            };
+            let mut values = Vec::with_capacity(queries.len());
+            for chunk in queries.chunks(EVALUATION_CHUNK) {
+                values.extend(evaluator.evaluate(chunk).await.map_err(field_error)?);
             }
-            None => evaluator.insert(network.evaluator(&engine.net, &planes, EVALUATION_CHUNK).map_err(field_error)?),
-        };
-        let mut values = Vec::with_capacity(queries.len());
-        for chunk in queries.chunks(EVALUATION_CHUNK) {
-            values.extend(evaluator.evaluate(chunk).await.map_err(field_error)?);
+            evaluations += values.len() as u64;
+            for (&k, &v) in nodes.iter().zip(&values) {
+                sweep.add(*tile, k, v);
+            }
         }
-        evaluations += values.len() as u64;
-        for (&k, &v) in nodes.iter().zip(&values) {
-            let n = tiles.node_of_key(k);
-            let w = tiles.weight(*tile, n.map(|c| c as f64 * tiles.cell)) as f32;
-            if w > 0.0 && v.is_finite() {
-                let e = blend.entry(k).or_insert((0.0, 0.0));
-                e.0 += w * v;
-                e.1 += w;
+        let new = sweep.tile_done(*tile);
+        if !new.is_empty() {
+            let mut piece = sweep.piece(new);
+            crate::units::to_metres(settings.units, &mut piece.positions, cloud.origin);
+            if !progress(&Stage::Meshed { positions: piece.positions, indices: piece.indices }) {
+                return Err(PipelineError::Cancelled);
             }
         }
     }
     progress(&Stage::Tile { done: of, of });
     let mut timings = vec![("tiles", now() - t_all)];
 
-    // Marching cubes over the cells whose eight corners were all evaluated.
     let t = now();
-    let cells = active_cells(tiles, &blend);
-    drop(blend);
-    let active = cells.cells.len();
-    let mut mesh = crate::mesh::polygonize(&cells);
-    drop(cells);
+    let report = sweep.report();
+    let (mut mesh, active) = sweep.finish();
     let triangles_extracted = mesh.triangle_count();
     let opts = crate::mesh::ExtractOptions { remove_small_components: settings.remove_small_components, ..Default::default() };
     let removal;
@@ -341,45 +416,177 @@ pub async fn reconstruct(
         tuning: None,
         timings,
         gpu_peaks: Vec::new(),
+        scene: Some(report),
     })
 }
 
-/// The cells of the grid with all eight corners blended and a sign change among them.
-fn active_cells(tiles: &TilePlan, blend: &HashMap<u64, (f32, f32)>) -> ActiveCells {
-    let r = tiles.resolution;
-    let value = |n: [i64; 3]| -> Option<f32> {
-        if n.iter().any(|&c| c > r as i64) {
-            return None;
+/// What a scene's sweep did, for the report and the tests.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SceneReport {
+    pub tiles: usize,
+    /// Band nodes blended, in all.
+    pub nodes: usize,
+    /// The most band nodes held at once: the sweep's front.
+    pub peak_nodes: usize,
+}
+
+/// The blended field on the band's nodes, grouped by the tile-sized cube (core) each node
+/// lies in. A cube is meshed as soon as every tile that weighs its nodes is done (the tiles
+/// within one cube of it: the overlap is a quarter of a tile), and its nodes are dropped as
+/// soon as the cubes whose cells reach into it (itself and the seven below it) are meshed.
+/// So the field held follows the sweep's front, not the scene, and finished pieces of the
+/// mesh are there to show while the rest is computed.
+struct Sweep<'a> {
+    plan: &'a TilePlan,
+    planned: HashSet<[i64; 3]>,
+    done: HashSet<[i64; 3]>,
+    /// Σ w·f and Σ w per band node, by cube.
+    cubes: HashMap<[i64; 3], KeyMap<(f32, f32)>>,
+    held: usize,
+    report: SceneReport,
+    /// The mesh so far, welded by the global edge key of each vertex.
+    mesh: Mesh,
+    vertex_of_edge: KeyMap<u32>,
+    active: usize,
+}
+
+/// The 27 cubes around `c`, itself included.
+fn around(c: [i64; 3]) -> impl Iterator<Item = [i64; 3]> {
+    (0..27).map(move |i| [c[0] + i % 3 - 1, c[1] + i / 3 % 3 - 1, c[2] + i / 9 - 1])
+}
+
+impl<'a> Sweep<'a> {
+    fn new(plan: &'a TilePlan) -> Self {
+        Sweep {
+            plan,
+            planned: plan.tiles.iter().map(|(t, _)| *t).collect(),
+            done: HashSet::new(),
+            cubes: HashMap::new(),
+            held: 0,
+            report: SceneReport { tiles: plan.tiles.len(), ..Default::default() },
+            mesh: Mesh::default(),
+            vertex_of_edge: KeyMap::default(),
+            active: 0,
         }
-        blend.get(&tiles.node_key(n)).map(|(wf, w)| wf / w)
-    };
-    let mut found: Vec<([u32; 3], [f32; 8])> = Vec::new();
-    for &k in blend.keys() {
-        let n = tiles.node_of_key(k);
-        if n.iter().any(|&c| c >= r as i64) {
-            continue;
+    }
+
+    fn cube_of(n: [i64; 3]) -> [i64; 3] {
+        n.map(|c| c.div_euclid(TILE_CELLS as i64))
+    }
+
+    /// Adds `tile`'s value `v` at node `key`, weighed by the tile's blend weight there.
+    fn add(&mut self, tile: [i64; 3], key: u64, v: f32) {
+        let n = self.plan.node_of_key(key);
+        let w = self.plan.weight(tile, n.map(|c| c as f64 * self.plan.cell)) as f32;
+        if w > 0.0 && v.is_finite() {
+            let e = self.cubes.entry(Self::cube_of(n)).or_default().entry(key).or_insert_with(|| {
+                self.held += 1;
+                self.report.nodes += 1;
+                (0.0, 0.0)
+            });
+            e.0 += w * v;
+            e.1 += w;
+            self.report.peak_nodes = self.report.peak_nodes.max(self.held);
         }
-        let mut v = [0.0f32; 8];
-        let mut ok = true;
-        for (c, vc) in v.iter_mut().enumerate() {
-            match value([n[0] + (c & 1) as i64, n[1] + (c >> 1 & 1) as i64, n[2] + (c >> 2 & 1) as i64]) {
-                Some(x) => *vc = x,
-                None => {
-                    ok = false;
-                    break;
+    }
+
+    /// Every tile that can weigh a node of cube `c` is done (or holds no points).
+    fn complete(&self, c: [i64; 3]) -> bool {
+        around(c).all(|t| !self.planned.contains(&t) || self.done.contains(&t))
+    }
+
+    /// Marks `tile` done, meshes the cubes that this completes and drops the nodes no cube
+    /// needs any more. Returns the range of the mesh's indices that are new.
+    fn tile_done(&mut self, tile: [i64; 3]) -> std::ops::Range<usize> {
+        self.done.insert(tile);
+        let start = self.mesh.indices.len();
+        // Only the cubes around this tile can have been completed by it.
+        let mut newly: Vec<[i64; 3]> = around(tile).filter(|&c| self.cubes.contains_key(&c) && self.complete(c)).collect();
+        newly.sort_by_key(|c| (c[2], c[1], c[0]));
+        for &c in &newly {
+            self.mesh_cube(c);
+        }
+        for &c in &newly {
+            for d in 0..8 {
+                let up = [c[0] + (d & 1), c[1] + (d >> 1 & 1), c[2] + (d >> 2 & 1)];
+                let below_done = (0..8).all(|e| self.complete([up[0] - (e & 1), up[1] - (e >> 1 & 1), up[2] - (e >> 2 & 1)]));
+                if below_done {
+                    if let Some(nodes) = self.cubes.remove(&up) {
+                        self.held -= nodes.len();
+                    }
                 }
             }
         }
-        let inside = v.iter().filter(|&&x| x > 0.0).count();
-        if ok && inside > 0 && inside < 8 {
-            found.push((n.map(|c| c as u32), v));
+        start..self.mesh.indices.len()
+    }
+
+    fn value(&self, n: [i64; 3]) -> Option<f32> {
+        if n.iter().any(|&c| c > self.plan.resolution as i64) {
+            return None;
+        }
+        self.cubes.get(&Self::cube_of(n))?.get(&self.plan.node_key(n)).map(|(wf, w)| wf / w)
+    }
+
+    /// Marching cubes over cube `c`'s cells (those whose low corner is in it) with all eight
+    /// corners blended and a sign change among them, welded onto the mesh so far.
+    fn mesh_cube(&mut self, c: [i64; 3]) {
+        let r = self.plan.resolution;
+        let mut found: Vec<([u32; 3], [f32; 8])> = Vec::new();
+        for &k in self.cubes[&c].keys() {
+            let n = self.plan.node_of_key(k);
+            if n.iter().any(|&x| x >= r as i64) {
+                continue;
+            }
+            let mut v = [0.0f32; 8];
+            let all = (0..8).all(|corner| {
+                let at = [n[0] + (corner & 1) as i64, n[1] + (corner >> 1 & 1) as i64, n[2] + (corner >> 2 & 1) as i64];
+                self.value(at).map(|x| v[corner] = x).is_some()
+            });
+            let inside = v.iter().filter(|&&x| x > 0.0).count();
+            if all && inside > 0 && inside < 8 {
+                found.push((n.map(|x| x as u32), v));
+            }
+        }
+        found.sort_by_key(|(c, _)| (c[2], c[1], c[0]));
+        self.active += found.len();
+        let side = r as f64 * self.plan.cell;
+        let lo = self.plan.origin.map(|c| c as f32);
+        let hi = self.plan.origin.map(|c| (c + side) as f32);
+        let cells = ActiveCells { resolution: r, domain: (lo, hi), cells: found.iter().map(|(c, _)| *c).collect(), values: found.into_iter().map(|(_, v)| v).collect() };
+        let (keys, positions) = crate::mesh::marching_cubes::soup(&cells);
+        for (k, p) in keys.into_iter().zip(positions) {
+            let next = self.mesh.positions.len() as u32;
+            let i = *self.vertex_of_edge.entry(k).or_insert(next);
+            if i == next {
+                self.mesh.positions.push(p);
+            }
+            self.mesh.indices.push(i);
         }
     }
-    found.sort_by_key(|(c, _)| (c[2], c[1], c[0]));
-    let side = r as f64 * tiles.cell;
-    let lo = tiles.origin.map(|c| c as f32);
-    let hi = tiles.origin.map(|c| (c + side) as f32);
-    ActiveCells { resolution: r, domain: (lo, hi), cells: found.iter().map(|(c, _)| *c).collect(), values: found.into_iter().map(|(_, v)| v).collect() }
+
+    /// The triangles `indices[range]` as a mesh of their own.
+    fn piece(&self, range: std::ops::Range<usize>) -> Mesh {
+        let mut local: HashMap<u32, u32> = HashMap::new();
+        let mut piece = Mesh::default();
+        for &i in &self.mesh.indices[range] {
+            let j = *local.entry(i).or_insert_with(|| {
+                piece.positions.push(self.mesh.positions[i as usize]);
+                piece.positions.len() as u32 - 1
+            });
+            piece.indices.push(j);
+        }
+        piece
+    }
+
+    fn report(&self) -> SceneReport {
+        self.report.clone()
+    }
+
+    /// The whole mesh and its count of active cells, once every tile is done.
+    fn finish(self) -> (Mesh, usize) {
+        debug_assert!(self.cubes.is_empty(), "{} cubes left", self.cubes.len());
+        (self.mesh, self.active)
+    }
 }
 
 #[cfg(test)]
@@ -402,6 +609,97 @@ mod tests {
             }
             assert!((sum - 1.0).abs() < 1e-9, "{x:?}: {sum}");
         }
+    }
+
+    /// A wavy strip of floor 6 m long through [`Sweep`] against meshing the whole blend at once
+    /// (the blend accumulated the same way, marching cubes over every cell): the same
+    /// triangles, while the sweep holds only a few slices of the strip's nodes at a time.
+    #[test]
+    fn the_sweep_meshes_what_the_whole_blend_would_and_holds_a_front() {
+        let height = |x: f64, y: f64| 0.3 + 0.05 * (3.0 * x).sin() + 0.02 * (5.0 * y).cos();
+        let mut pts = Vec::new();
+        for i in 0..200 {
+            for j in 0..34 {
+                let (x, y) = (i as f64 * 0.03, j as f64 * 0.03);
+                pts.push([x as f32, y as f32, height(x, y) as f32]);
+            }
+        }
+        let plan = plan(&pts, Some(0.01));
+        let field = |n: [i64; 3]| {
+            let p = [0, 1, 2].map(|a| plan.origin[a] + n[a] as f64 * plan.cell);
+            (height(p[0], p[1]) - p[2]) as f32
+        };
+        let mut sweep = Sweep::new(&plan);
+        let mut whole: HashMap<u64, (f32, f32)> = HashMap::new();
+        let o = OVERLAP * plan.size;
+        let mut pieces = 0;
+        for (t, _) in &plan.tiles {
+            let mine: Vec<[f32; 3]> = pts
+                .iter()
+                .filter(|p| (0..3).all(|a| {
+                    let c0 = plan.origin[a] + t[a] as f64 * plan.size;
+                    (p[a] as f64) >= c0 - o && (p[a] as f64) < c0 + plan.size + o
+                }))
+                .copied()
+                .collect();
+            for k in plan.band_nodes(*t, &mine) {
+                let n = plan.node_of_key(k);
+                sweep.add(*t, k, field(n));
+                let w = plan.weight(*t, n.map(|c| c as f64 * plan.cell)) as f32;
+                if w > 0.0 {
+                    let e = whole.entry(k).or_insert((0.0, 0.0));
+                    e.0 += w * field(n);
+                    e.1 += w;
+                }
+            }
+            pieces += !sweep.tile_done(*t).is_empty() as usize;
+        }
+        let report = sweep.report();
+        let (mesh, _) = sweep.finish();
+
+        // The whole blend at once.
+        let r = plan.resolution as i64;
+        let value = |n: [i64; 3]| whole.get(&plan.node_key(n)).map(|(wf, w)| wf / w);
+        let mut cells = Vec::new();
+        for &k in whole.keys() {
+            let n = plan.node_of_key(k);
+            if n.iter().any(|&c| c >= r) {
+                continue;
+            }
+            let v: Option<Vec<f32>> = (0..8).map(|c| value([n[0] + (c & 1), n[1] + (c >> 1 & 1), n[2] + (c >> 2 & 1)])).collect();
+            if let Some(v) = v {
+                let inside = v.iter().filter(|&&x| x > 0.0).count();
+                if inside > 0 && inside < 8 {
+                    cells.push((n.map(|c| c as u32), <[f32; 8]>::try_from(v).unwrap()));
+                }
+            }
+        }
+        cells.sort_by_key(|(c, _)| (c[2], c[1], c[0]));
+        let side = plan.resolution as f64 * plan.cell;
+        let all = ActiveCells {
+            resolution: plan.resolution,
+            domain: (plan.origin.map(|c| c as f32), plan.origin.map(|c| (c + side) as f32)),
+            cells: cells.iter().map(|(c, _)| *c).collect(),
+            values: cells.iter().map(|(_, v)| *v).collect(),
+        };
+        let reference = crate::mesh::polygonize(&all);
+        let triangles = |m: &Mesh| {
+            let mut t: Vec<[[u32; 3]; 3]> = m
+                .indices
+                .chunks_exact(3)
+                .map(|t| [0, 1, 2].map(|i| m.positions[t[i] as usize].map(f32::to_bits)))
+                .collect();
+            t.sort_unstable();
+            t
+        };
+        eprintln!("{} tiles, {pieces} pieces, {} triangles; nodes {} held at most {}", plan.tiles.len(), mesh.triangle_count(), report.nodes, report.peak_nodes);
+        assert!(mesh.triangle_count() > 10_000);
+        assert_eq!(mesh.vertex_count(), reference.vertex_count());
+        assert!(triangles(&mesh) == triangles(&reference), "the sweep's mesh differs from the whole blend's");
+        assert_eq!(report.nodes, whole.len());
+        assert!(pieces >= plan.tiles.len() / 4, "{pieces} pieces for {} tiles", plan.tiles.len());
+        // Ten tiles along the strip: the front is about three slices of them.
+        assert!(report.peak_nodes * 2 < report.nodes, "held {} of {} nodes", report.peak_nodes, report.nodes);
     }
 
     #[test]

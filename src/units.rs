@@ -65,6 +65,9 @@ pub struct UnitsGuess {
     /// Whether the user should be warned when they give no units: the extent suggests
     /// millimetres, and glTF's metres would make the mesh 1000 times too large.
     pub warn: bool,
+    /// The file states its units (or its format fixes them, as LAS's metres): the units are a
+    /// fact, not a guess from the size.
+    pub stated: bool,
 }
 
 /// The units a cloud's longest side `longest` (in file units) suggests. `stated` are units the
@@ -75,7 +78,7 @@ pub struct UnitsGuess {
 /// must give) is the likelier reading; beyond 5000, a site or terrain in metres or feet.
 pub fn guess(longest: f64, stated: Option<Units>) -> UnitsGuess {
     if let Some(u) = stated {
-        return UnitsGuess { units: Some(u), reason: format!("the file states {u}"), warn: false };
+        return UnitsGuess { units: Some(u), reason: format!("the file states {u}"), warn: false, stated: true };
     }
     let l = format!("{longest:.4}");
     let l = l.trim_end_matches('0').trim_end_matches('.');
@@ -87,18 +90,21 @@ pub fn guess(longest: f64, stated: Option<Units>) -> UnitsGuess {
                 longest * 1e-3
             ),
             warn: true,
+            stated: false,
         }
     } else if longest <= 20.0 {
         UnitsGuess {
             units: Some(Units::Metres),
             reason: format!("the longest side is {l} units: plausible in metres"),
             warn: false,
+            stated: false,
         }
     } else {
         UnitsGuess {
             units: None,
             reason: format!("the longest side is {l} units: a site or terrain, in metres or feet"),
             warn: false,
+            stated: false,
         }
     }
 }

@@ -7,7 +7,9 @@ mod common;
 use std::collections::HashMap;
 
 use nkrr::pipeline::Engine;
+use nkrr::scene::Scale;
 use nkrr::settings::{Method, Settings, Tiles};
+use nkrr::units::Units;
 use nkrr::PointCloud;
 
 /// Floor 3 x 2.4 m (z = 0), walls along x = 0 and y = 0 (1.2 m high), a ball of radius 0.3 m
@@ -15,7 +17,7 @@ use nkrr::PointCloud;
 fn corner() -> (PointCloud, [f32; 3], f32) {
     let mut rng = nkrr::rng::SplitMix64(5);
     let mut pts = Vec::new();
-    let mut noise = |rng: &mut nkrr::rng::SplitMix64| ((rng.unit() + rng.unit() + rng.unit() - 1.5) * 0.004) as f32;
+    let noise = |rng: &mut nkrr::rng::SplitMix64| ((rng.unit() + rng.unit() + rng.unit() - 1.5) * 0.004) as f32;
     let mut patch = |o: [f32; 3], u: [f32; 3], v: [f32; 3], n: usize, rng: &mut nkrr::rng::SplitMix64| {
         for _ in 0..n {
             let (a, b) = (rng.unit() as f32, rng.unit() as f32);
@@ -45,40 +47,67 @@ fn a_scene_is_tiled_when_it_spans_metres_and_an_object_is_not() {
     let (room, _, _) = corner();
     // Under auto a 3 m cloud is one object (as a 4 m closed ellipsoid must stay); scaled to 6 m
     // it is a scene; tiles on cuts either.
-    assert!(nkrr::scene::decide(&room, &Settings::default(), None).is_none());
+    let metres = Scale { units: Some(Units::Metres), stated: true };
+    assert!(nkrr::scene::decide(&room, &Settings::default(), metres).is_none());
     let big = PointCloud { positions: room.positions.iter().map(|p| p.map(|c| c * 2.0)).collect(), ..Default::default() };
-    assert!(nkrr::scene::decide(&big, &Settings::default(), None).unwrap().reason.contains("6.0 m"));
+    assert!(nkrr::scene::decide(&big, &Settings::default(), metres).unwrap().reason.contains("6.0 m"));
+    // In a file that does not state its units (PLY, text), 6 units across with 60k points may be
+    // an object (the eval clouds are 3-10 units): one cube, with a hint; from 500k points, a scene.
+    let guessed = Scale { units: Some(Units::Metres), stated: false };
+    assert!(nkrr::scene::decide(&big, &Settings::default(), guessed).is_none());
+    let hint = nkrr::scene::hint(&big, &Settings::default(), guessed).expect("a hint");
+    assert!(hint.contains("--tiles on"), "{hint}");
+    let dense = PointCloud { positions: big.positions.iter().cycle().take(nkrr::scene::UNSTATED_SCENE_POINTS).copied().collect(), ..Default::default() };
+    assert!(nkrr::scene::decide(&dense, &Settings::default(), guessed).is_some());
+    assert!(nkrr::scene::decide(&big, &Settings { units: Some(Units::Metres), ..Settings::default() }, guessed).is_some());
     let s = Settings { tiles: Tiles::On, ..Settings::default() };
-    let plan = nkrr::scene::decide(&room, &s, None).expect("tiles on");
+    let plan = nkrr::scene::decide(&room, &s, Scale::default()).expect("tiles on");
     assert!(plan.tiles.len() >= 4, "{} tiles", plan.tiles.len());
     assert!(plan.reason.contains("asked for"), "{}", plan.reason);
-    assert!(nkrr::scene::decide(&room, &Settings { tiles: Tiles::Off, ..s.clone() }, None).is_none());
+    assert!(nkrr::scene::decide(&room, &Settings { tiles: Tiles::Off, ..s.clone() }, Scale::default()).is_none());
     let auto = Settings::default();
     // 1500 units across: a scene when they are metres, one object of 1.5 m when the file
     // suggests millimetres or --units says so.
     let mm = PointCloud { positions: room.positions.iter().map(|p| p.map(|c| c * 500.0)).collect(), ..Default::default() };
-    assert!(nkrr::scene::decide(&mm, &auto, None).is_some());
-    assert!(nkrr::scene::decide(&mm, &auto, Some(nkrr::units::Units::Millimetres)).is_none());
-    let by_flag = Settings { units: Some(nkrr::units::Units::Millimetres), ..auto.clone() };
-    assert!(nkrr::scene::decide(&mm, &by_flag, Some(nkrr::units::Units::Metres)).is_none());
+    assert!(nkrr::scene::decide(&mm, &auto, Scale { units: None, stated: true }).is_some());
+    assert!(nkrr::scene::decide(&mm, &auto, Scale { units: Some(Units::Millimetres), stated: true }).is_none());
+    let by_flag = Settings { units: Some(Units::Millimetres), ..auto.clone() };
+    assert!(nkrr::scene::decide(&mm, &by_flag, metres).is_none());
 }
 
 #[test]
 fn tiles_blend_into_one_mesh_without_cracks_and_keep_the_object() {
     let (room, centre, r) = corner();
     let s = Settings { method: Method::Network, tiles: Tiles::On, ..Settings::default() };
-    let plan = nkrr::scene::decide(&room, &s, None).unwrap();
+    let plan = nkrr::scene::decide(&room, &s, Scale::default()).unwrap();
     let gpu = nkrr::gpu::Gpu::new_blocking().expect("a wgpu adapter (lavapipe will do)");
     let engine = pollster::block_on(Engine::new(gpu)).unwrap();
     let mut tiles_seen = Vec::new();
+    // Pieces of the mesh as they are finished: (tiles done when it came, triangles, vertices).
+    let mut pieces: Vec<(usize, usize, usize)> = Vec::new();
     let before = engine.gpu.allocations();
-    let rec = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &room, &s, None, &mut |st| {
-        if let nkrr::pipeline::Stage::Tile { done, of } = st {
-            tiles_seen.push((*done, *of));
+    let rec = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &room, &s, Scale::default(), &mut |st| {
+        match st {
+            nkrr::pipeline::Stage::Tile { done, of } => tiles_seen.push((*done, *of)),
+            nkrr::pipeline::Stage::Meshed { positions, indices } => {
+                assert!(indices.iter().all(|&i| (i as usize) < positions.len()));
+                pieces.push((tiles_seen.len(), indices.len() / 3, positions.len()));
+            }
+            _ => {}
         }
         true
     }))
     .unwrap();
+    // The mesh comes in pieces while the tiles run, not all at the end, and the pieces are
+    // the whole extracted mesh; the blend never held the whole scene's nodes at once.
+    let scene = rec.scene.clone().expect("a scene report");
+    let shown: usize = pieces.iter().map(|p| p.1).sum();
+    eprintln!("{} pieces, first after tile {}; {} triangles; nodes {} held at most {}", pieces.len(), pieces[0].0, shown, scene.nodes, scene.peak_nodes);
+    assert_eq!(shown, rec.extract.triangles_extracted);
+    // (A corner of a room is only a few tiles across, so the front is most of it; the sweep's
+    // bound on a long scene is tested in scene.rs's unit tests.)
+    assert!(pieces.len() >= 3 && pieces[0].0 < tiles_seen.len() - 1, "{pieces:?}");
+    assert!(scene.peak_nodes < scene.nodes, "the blend held {} of {} nodes", scene.peak_nodes, scene.nodes);
     let made = engine.gpu.allocations().since(&before);
     assert!(rec.notices[0].contains("as a scene in"), "{:?}", rec.notices);
     // Per tile, only the encoder's buffers are made: the decoder's are made once and rebound.
@@ -135,4 +164,22 @@ fn tiles_blend_into_one_mesh_without_cracks_and_keep_the_object() {
     assert!(near.len() > 100 && away.len() > 100);
     assert!(mean(&near) < mean(&away) + 0.002 && max(&near) < max(&away) + 0.003, "the floor bends at tile borders");
     assert!(open_in_floor.len() <= 4, "{} open edges in the open floor, e.g. {:?}", open_in_floor.len(), &open_in_floor[..open_in_floor.len().min(5)]);
+}
+
+/// The eval clouds (PLY without units, 3-10 units across, 3k-10k points) are objects: `tiles
+/// auto` keeps them whole, so their meshes are the one-object path's (docs/results.md).
+#[test]
+fn the_eval_clouds_stay_one_object() {
+    let dir = common::repo_root().join("tests/data/eval");
+    let mut seen = 0;
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let path = e.unwrap().path();
+        if path.extension().is_some_and(|x| x == "ply") {
+            let scan = nkrr::io::read_cloud(&std::fs::read(&path).unwrap(), None).unwrap();
+            let scale = Scale::from(&scan.units_guess());
+            assert!(nkrr::scene::decide(&scan.cloud, &Settings::default(), scale).is_none(), "{} would be tiled", path.display());
+            seen += 1;
+        }
+    }
+    assert!(seen >= 10, "{seen} eval clouds");
 }

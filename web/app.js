@@ -131,7 +131,7 @@ async function openFile(file, source = null) {
   const points = cloud.sample_positions(100_000);
   // The worker reads the file itself for each run; the preflight needs only the counts (read
   // before free: the Cloud's getters fail once it is freed).
-  input = { name: file.name, file, source, points, count: cloud.count, colours: cloud.has_colors };
+  input = { name: file.name, file, source, points, count: cloud.count, colours: cloud.has_colors, units: g.units, stated: g.stated };
   cloud.free();
   updatePreflight();
   updateShareLink();
@@ -149,7 +149,9 @@ function updatePreflight() {
   if (!input || !nk || !viewer) { ul.replaceChildren(); return; }
   let lines;
   try {
-    lines = nk.preflight(input.count, input.colours, settings.readOptions(), viewer.binding_limit, viewer.software);
+    // The sample lets a scene be planned in tiles as the worker will cut it.
+    lines = nk.preflight(input.count, input.colours, settings.readOptions(), viewer.binding_limit, viewer.software,
+      input.points, input.units ?? undefined, input.stated);
   } catch (e) {
     lines = [`no estimate: ${e.message ?? e}`];
   }
@@ -184,7 +186,63 @@ function stageText(p, opts) {
   }
 }
 
+// A scene's finished pieces (the worker's 'meshed' events), drawn while the other tiles run;
+// the result replaces them. Redrawn at most every PREVIEW_MS: each draw uploads all pieces.
+const PREVIEW_MS = 400;
+const preview = {
+  pieces: [],
+  timer: null,
+  triangles: 0,
+  add(p) {
+    this.pieces.push(p);
+    this.triangles += p.indices.length / 3;
+    this.timer ??= setTimeout(() => this.draw(), PREVIEW_MS);
+  },
+  draw() {
+    this.timer = null;
+    if (!job || !this.pieces.length) return;
+    const vertices = this.pieces.reduce((n, p) => n + p.positions.length, 0);
+    const positions = new Float32Array(vertices);
+    const normals = new Float32Array(vertices);
+    const indices = new Uint32Array(this.triangles * 3);
+    let v = 0;
+    let i = 0;
+    for (const p of this.pieces) {
+      positions.set(p.positions, v);
+      normals.set(p.normals, v);
+      for (let k = 0; k < p.indices.length; k++) indices[i + k] = p.indices[k] + v / 3;
+      v += p.positions.length;
+      i += p.indices.length;
+    }
+    try {
+      viewer.set_mesh(positions, normals, indices);
+    } catch (e) {
+      console.warn(`the scene's pieces are not shown: ${e.message ?? e}`);
+      this.pieces = [];
+      return;
+    }
+    $('show-mesh').checked = true;
+    applyVisibility();
+    mark('preview', String(this.triangles));
+  },
+  /** Forgets the pieces (and removes them from the view unless `keep`: the result replaces them). */
+  reset(keep = false) {
+    clearTimeout(this.timer);
+    const shown = this.pieces.length > 0;
+    Object.assign(this, { pieces: [], timer: null, triangles: 0 });
+    mark('preview', null);
+    if (shown && !keep) {
+      viewer.clear_mesh();
+      requestRender();
+    }
+  },
+};
+
 function onProgress(p) {
+  if (p.stage === 'meshed') {
+    preview.add(p);
+    return;
+  }
   const opts = job.options;
   const share = SHARES[opts.method]?.[p.stage];
   let f = job.fraction;
@@ -273,6 +331,7 @@ function cancel(message = CANCELLED) {
 
 function finish(state, message) {
   if (!job) return;
+  preview.reset(state === 'done');
   clearInterval(job.timer);
   tick();
   job = null;
@@ -289,6 +348,7 @@ function onDone(r) {
     viewer.set_mesh(r.positions, r.normals, r.indices, r.colors?.length ? r.colors : undefined);
   } catch (e) {
     notShown = e.message ?? String(e);
+    viewer.clear_mesh(); // not a scene's pieces in place of the result
   }
   Object.assign($('show-mesh'), { disabled: false, checked: true });
   $('show-wire').disabled = false;

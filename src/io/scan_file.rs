@@ -93,7 +93,7 @@ impl ScanFile {
         // taken as metres (the reader's note says so), whatever the size.
         if self.format == ScanFormat::Las && self.stated_units.is_none() {
             let reason = "LAS coordinates without a coordinate system nkrr reads are taken as metres".to_string();
-            return crate::units::UnitsGuess { units: Some(crate::units::Units::Metres), reason, warn: false };
+            return crate::units::UnitsGuess { units: Some(crate::units::Units::Metres), reason, warn: false, stated: true };
         }
         crate::units::guess(longest, self.stated_units)
     }

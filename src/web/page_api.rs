@@ -144,8 +144,21 @@ pub fn settings_table() -> Array {
 /// both from [`super::Viewer::adapter_facts`], whose adapter the worker shares): one line per
 /// stage with its GPU and host memory, the limits, and what will be changed to fit. The
 /// reconstruction applies the same plan.
+///
+/// `sample` (optional): an even sample of the cloud's positions, xyz flat, and `units` /
+/// `stated` what the file says of its units (the cloud's `units_guess`): with them a scene is
+/// planned as the worker will cut it, and the stages are those of its largest tile.
 #[wasm_bindgen]
-pub fn preflight(points: usize, colours: bool, options: JsValue, binding: f64, software: bool) -> Result<Vec<String>, JsValue> {
+pub fn preflight(
+    points: usize,
+    colours: bool,
+    options: JsValue,
+    binding: f64,
+    software: bool,
+    sample: Option<Vec<f32>>,
+    units: Option<String>,
+    stated: bool,
+) -> Result<Vec<String>, JsValue> {
     let opts = Options::from_js(&options)?;
     let config = crate::net::NetConfig::prior().map_err(|e| error("NetError", &e.to_string()))?;
     let facts = crate::plan::DeviceFacts {
@@ -153,7 +166,21 @@ pub fn preflight(points: usize, colours: bool, options: JsValue, binding: f64, s
         software,
         host_budget: Some(crate::plan::WASM_HOST_BUDGET),
     };
-    Ok(crate::plan::memory_plan(points, colours, &opts.settings, &config, &facts).lines())
+    let sample: Vec<[f32; 3]> = sample.unwrap_or_default().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let scale = crate::scene::Scale { units: units.and_then(|u| u.parse().ok()), stated };
+    let weight = points as f64 / sample.len().max(1) as f64;
+    match crate::scene::decide_sample(&sample, weight, &opts.settings, scale) {
+        Some(tiles) => {
+            let largest = tiles.largest_tile(&sample, weight);
+            let mut lines = vec![
+                format!("scene     will {}", tiles.reason),
+                format!("per tile  one tile at a time, the largest taking in about {largest} points with its overlap:"),
+            ];
+            lines.extend(crate::plan::memory_plan(largest, colours, &opts.settings, &config, &facts).lines());
+            Ok(lines)
+        }
+        None => Ok(crate::plan::memory_plan(points, colours, &opts.settings, &config, &facts).lines()),
+    }
 }
 
 /// Reads `text` as a value of setting `key` by the settings table's one rule

@@ -88,8 +88,11 @@ pub fn simulate_device_loss() -> bool {
 /// `RangeError` that names the key and its range), and `name` (the glTF node's name).
 ///
 /// `on_progress(p)` is called at each stage with `{ stage: "features" | "pairs" | "tuning" |
-/// "meshing" | "done", step?, of?, loss?, evaluated?, expected? }`; returning `false` cancels, and the
-/// promise then rejects with an `Error` whose `name` is `"AbortError"`.
+/// "meshing" | "tiles" | "meshed" | "done", step?, of?, loss?, evaluated?, expected?, done? }`;
+/// returning `false` cancels, and the promise then rejects with an `Error` whose `name` is
+/// `"AbortError"`. A scene sends `"meshed"` with a finished piece of its mesh (`positions`,
+/// `normals`, `indices`, `triangles`; indices into the piece's own vertices, in the result's
+/// coordinates) each time a tile completes some, to show before the whole mesh is done.
 ///
 /// Resolves to `{ glb: Uint8Array, positions: Float32Array, normals: Float32Array,
 /// indices: Uint32Array, stats }` (see `stats_object` for the fields of `stats`).
@@ -106,6 +109,15 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
     let mut report = |s: &Stage| -> bool {
         let p = Object::new();
         let (stage, fields): (&str, Vec<(&str, f64)>) = match s {
+            Stage::Meshed { positions, indices } => {
+                // A piece of a scene's mesh, with normals to draw it by.
+                let mut piece = crate::mesh::Mesh { positions: positions.clone(), indices: indices.clone(), ..Default::default() };
+                piece.compute_vertex_normals();
+                set(&p, "positions", Float32Array::from(bytemuck::cast_slice::<[f32; 3], f32>(&piece.positions)));
+                set(&p, "normals", Float32Array::from(bytemuck::cast_slice::<[f32; 3], f32>(&piece.normals)));
+                set(&p, "indices", Uint32Array::from(piece.indices.as_slice()));
+                ("meshed", vec![("triangles", (indices.len() / 3) as f64)])
+            }
             Stage::Features => ("features", vec![]),
             Stage::Pairs => ("pairs", vec![]),
             Stage::Tuning { step, of, loss } => ("tuning", vec![("step", *step as f64), ("of", *of as f64), ("loss", *loss)]),
@@ -128,7 +140,7 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
             }
         }
     };
-    let result = crate::scene::reconstruct_auto(&engine, &parsed.cloud, &opts.settings, parsed.units_guess().units, &mut report).await;
+    let result = crate::scene::reconstruct_auto(&engine, &parsed.cloud, &opts.settings, (&parsed.units_guess()).into(), &mut report).await;
     if let Some(trouble) = take_trouble() {
         return Err(error("GpuError", &trouble));
     }

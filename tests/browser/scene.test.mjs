@@ -1,7 +1,7 @@
 // A scene in the page (issue 25): the small room of tests/data/scenes (scripts/scenes.py
 // --small: 4 x 3 x 2.5 m, three objects, 60k points, LAZ far from the origin) is reconstructed
 // in tiles through the worker: the progress goes through the tiles, the notice says why, and the
-// GLB covers the room where the points are (the full 5M-point scan is measured once, docs/scenes.md).
+// GLB covers the room where the points are; finished pieces of the mesh show while tiles run (the full 5M-point scan is measured once, docs/scenes.md).
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
@@ -34,6 +34,10 @@ test('a small room reconstructs in tiles: progress per tile, the scene notice, a
     await page.selectOption('#method', 'network');
     // 4 m across: a small room is tiled when asked (auto starts at 5 m).
     await page.selectOption('#tiles', 'on');
+    // The preflight plans the tiles as the worker will cut them, and sizes the stages by the largest.
+    const preflight = await page.$$eval('#preflight-lines li', (ls) => ls.map((l) => l.textContent));
+    assert.ok(preflight.some((l) => /^scene\s+will reconstruct the cloud as a scene in \d+ tiles/.test(l)), JSON.stringify(preflight));
+    assert.ok(preflight.some((l) => /^per tile\s+.*about \d+ points/.test(l)), JSON.stringify(preflight));
     // Every stage the page shows, in order.
     await page.evaluate(() => {
       window.__stages = [];
@@ -42,13 +46,32 @@ test('a small room reconstructs in tiles: progress per tile, the scene notice, a
         if (window.__stages.at(-1) !== s) window.__stages.push(s);
       }).observe(document.getElementById('stage'), { childList: true, characterData: true, subtree: true });
     });
-    const seconds = await runToEnd(page, RUN_TIMEOUT);
+    // The scene's finished pieces, drawn while the tiles run (body[data-preview]: triangles shown).
+    await page.evaluate(() => {
+      window.__previews = [];
+      new MutationObserver(() => {
+        const t = document.body.dataset.preview;
+        if (t) window.__previews.push({ triangles: Number(t), running: document.body.dataset.job === 'running', stage: document.getElementById('stage').textContent });
+      }).observe(document.body, { attributes: true, attributeFilter: ['data-preview'] });
+    });
+    const running = runToEnd(page, RUN_TIMEOUT);
+    await page.waitForFunction(() => document.body.dataset.preview || document.body.dataset.job === 'idle', null, { timeout: RUN_TIMEOUT, polling: 250 });
+    if (await page.evaluate(() => document.body.dataset.job === 'running')) {
+      await page.screenshot({ path: path.join(ARTIFACTS, 'scene-room-small-pieces.png') });
+    }
+    const seconds = await running;
     assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
     const stages = await page.evaluate(() => window.__stages);
     const tiles = stages.filter((s) => /^Scene: tile \d+ of \d+$/.test(s));
     assert.ok(tiles.length >= 3, `tile progress: ${JSON.stringify(stages)}`);
     const of = Number(tiles[0].match(/of (\d+)/)[1]);
     assert.ok(of >= 4, `${of} tiles`);
+    // Pieces came while tiles were still running, growing, and the result replaced them.
+    const previews = await page.evaluate(() => window.__previews);
+    assert.ok(previews.length >= 2 && previews.every((p) => p.running), `previews: ${JSON.stringify(previews)}`);
+    assert.ok(/^Scene: tile \d+ of \d+$/.test(previews[0].stage) && Number(previews[0].stage.match(/tile (\d+)/)[1]) < of, JSON.stringify(previews[0]));
+    assert.ok(previews.every((p, i) => i === 0 || p.triangles > previews[i - 1].triangles), JSON.stringify(previews));
+    assert.equal(await page.evaluate(() => document.body.dataset.preview), undefined);
     const notices = await page.textContent('#r-notices');
     assert.match(notices, /as a scene in \d+ tiles/, notices);
 

@@ -183,10 +183,16 @@ fn info(args: &[String]) -> Result<(), Failure> {
     if scan.comments.len() > COMMENTS_SHOWN {
         say!("comment:    … and {} more comments", scan.comments.len() - COMMENTS_SHOWN);
     }
-    match nkrr::scene::decide(cloud, &settings, scan.units_guess().units) {
+    let scale = nkrr::scene::Scale::from(&scan.units_guess());
+    match nkrr::scene::decide(cloud, &settings, scale) {
         // A scene runs tile by tile, each tile through the network as one small cloud.
-        Some(tiles) => say!("scene:      will {}; each tile holds at most {} points", tiles.reason, tiles.tiles.iter().map(|t| t.1).max().unwrap_or(0)),
-        None => preflight(cloud, &settings),
+        Some(tiles) => say!("scene:      will {}; each tile takes in at most {} points (with its overlap)", tiles.reason, tiles.largest_tile(&cloud.positions, 1.0)),
+        None => {
+            if let Some(h) = nkrr::scene::hint(cloud, &settings, scale) {
+                say!("scene:      {h}");
+            }
+            preflight(cloud, &settings)
+        }
     }
     for w in scan.warnings() {
         say!("warning:    {w}");
@@ -273,13 +279,25 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     tell!("GPU: {}", gpu.info.name);
     let engine = engine(gpu, weights)?;
     let mut last = String::new();
+    let mut tiles_started: Option<std::time::Instant> = None;
     let mut report = |s: &Stage| {
         let line = match s {
             Stage::Features => "computing features".to_string(),
             Stage::Pairs => "sampling and labelling training pairs".to_string(),
             Stage::Tuning { step, of, loss } => format!("tuning: step {step}/{of}, loss {loss:.6}"),
             Stage::Meshing { evaluated, expected } => format!("meshing: {evaluated} field evaluations (of about {expected})"),
-            Stage::Tile { done, of } => format!("tiles: {done} of {of}"),
+            Stage::Tile { done, of } => {
+                // The time left from the tiles done so far (tiles cost about the same each).
+                let since = *tiles_started.get_or_insert_with(std::time::Instant::now);
+                match since.elapsed().as_secs_f64() {
+                    t if *done > 0 && done < of && t > 1.0 => {
+                        format!("tiles: {done} of {of}, about {} left", minutes(t / *done as f64 * (of - done) as f64))
+                    }
+                    _ => format!("tiles: {done} of {of}"),
+                }
+            }
+            // Pieces of a scene's mesh are for viewers to show; the tile count says enough here.
+            Stage::Meshed { .. } => return true,
             Stage::Done => "done".to_string(),
         };
         if line != last {
@@ -288,8 +306,8 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         }
         true
     };
-    let units = parsed.units_guess().units;
-    let rec = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &parsed.cloud, &settings, units, &mut report))
+    let scale = nkrr::scene::Scale::from(&parsed.units_guess());
+    let rec = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &parsed.cloud, &settings, scale, &mut report))
         .map_err(|e| fail(format!("{input}: {e}")))?;
     if let Some(t) = &rec.tuning {
         tell!(
@@ -762,4 +780,10 @@ fn write_eval_reports(
     write_file(&format!("{out}.md"), md.as_bytes())?;
     write_file(&format!("{out}.json"), js.as_bytes())?;
     Ok(())
+}
+
+/// `seconds` as "m:ss" (or "h:mm:ss").
+fn minutes(seconds: f64) -> String {
+    let s = seconds.round() as u64;
+    if s >= 3600 { format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60) } else { format!("{}:{:02}", s / 60, s % 60) }
 }
