@@ -41,7 +41,9 @@ def rotation(yaw, pitch):
     return rx @ ry
 
 
-def draw(pts, nrm, centre, scale, view, size):
+def draw(pts, nrm, centre, scale, view, size, color=None):
+    """One view of the samples as a size x size uint8 image: grey levels, or with color (one RGB
+    row in 0..1 per sample) an RGB image of the colours times the shading, on white."""
     r = rotation(*VIEWS[view])
     q = (pts - centre) @ r.T * scale  # in [-0.5, 0.5] roughly
     px = np.clip(((q[:, 0] + 0.55) / 1.1 * size).astype(int), 0, size - 1)
@@ -51,21 +53,25 @@ def draw(pts, nrm, centre, scale, view, size):
         px = np.concatenate([px, np.minimum(px + 1, size - 1), px, np.minimum(px + 1, size - 1)])
         py = np.concatenate([py, py, np.minimum(py + 1, size - 1), np.minimum(py + 1, size - 1)])
         depth, nrm = np.tile(depth, 4), np.tile(nrm, (4, 1))
+        if color is not None:
+            color = np.tile(color, (4, 1))
     if nrm is None:
         shade = 0.35 + 0.65 * (depth - depth.min()) / max(np.ptp(depth), 1e-9)
     else:
         n = nrm @ r.T
         light = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
         shade = 0.25 + 0.75 * np.abs(n @ light)  # unoriented normals: two-sided
-    img = np.full((size, size), 1.0)
+    if color is not None:
+        shade = np.asarray(color, dtype=np.float64) * shade[:, None]
+    img = np.full((size, size) + shade.shape[1:], 1.0)
     zbuf = np.full(size * size, -np.inf)
     idx = py * size + px
     order = np.argsort(depth)  # far to near: nearer samples overwrite
     zbuf[idx[order]] = depth[order]
-    val = np.full(size * size, np.nan)
+    val = np.full((size * size,) + shade.shape[1:], np.nan)
     val[idx[order]] = shade[order]
-    hit = ~np.isnan(val)
-    img.reshape(-1)[hit] = val[hit]
+    hit = ~np.isnan(val.reshape(size * size, -1)[:, 0])
+    img.reshape((size * size,) + shade.shape[1:])[hit] = val[hit]
     return (img * 255).astype(np.uint8)
 
 
