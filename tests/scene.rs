@@ -104,9 +104,9 @@ fn tiles_blend_into_one_mesh_without_cracks_and_keep_the_object() {
     let shown: usize = pieces.iter().map(|p| p.1).sum();
     eprintln!("{} pieces, first after tile {}; {} triangles; nodes {} held at most {}", pieces.len(), pieces[0].0, shown, scene.nodes, scene.peak_nodes);
     assert_eq!(shown, rec.extract.triangles_extracted);
-    // (A corner of a room is only a few tiles across, so the front is most of it; the sweep's
-    // bound on a long scene is tested in scene.rs's unit tests.)
-    assert!(pieces.len() >= 3 && pieces[0].0 < tiles_seen.len() - 1, "{pieces:?}");
+    // (A corner of a room is only a few tiles across, so the front is much of it (measured:
+    // half); the sweep's bound on a long scene is tested in scene.rs's unit tests.)
+    assert!(pieces.len() >= plan.tiles.len() / 2 && pieces[0].0 <= 2, "{pieces:?}");
     assert!(scene.peak_nodes < scene.nodes, "the blend held {} of {} nodes", scene.peak_nodes, scene.nodes);
     let made = engine.gpu.allocations().since(&before);
     assert!(rec.notices[0].contains("as a scene in"), "{:?}", rec.notices);

@@ -173,14 +173,24 @@ const SHARES = {
   nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], meshing: [0.7, 0.98], tiles: [0, 0.98] },
 };
 
+/** ", about m:ss left" in a stage whose steps cost about the same (tiles, tuning steps), from
+ * the time since its first event; empty until a few seconds and one step have passed. */
+function left(p, done, of, what) {
+  const since = job.stageStart[p.stage] ??= performance.now();
+  const t = (performance.now() - since) / 1000;
+  if (!(done > 0 && done < of && t > 3)) return '';
+  const s = Math.round((t / done) * (of - done));
+  return `, about ${Math.floor(s / 60)}:${String(s % 60).padStart(2, '0')} left${what}`;
+}
+
 function stageText(p, opts) {
   switch (p.stage) {
     case 'setup': return 'Preparing the GPU…';
     case 'features': return 'Computing features (network encoder)…';
     case 'pairs': return 'Sampling and labelling training pairs…';
-    case 'tuning': return `Tuning: step ${p.step} of ${p.of}, loss ${p.loss.toPrecision(4)}`;
+    case 'tuning': return `Tuning: step ${p.step} of ${p.of}, loss ${p.loss.toPrecision(4)}${left(p, p.step, p.of, ' for the tuning')}`;
     case 'meshing': return `Meshing at ${opts.resolution}³: ${fmt.format(p.evaluated)} field evaluations`;
-    case 'tiles': return `Scene: tile ${fmt.format(p.done)} of ${fmt.format(p.of)}`;
+    case 'tiles': return `Scene: tile ${fmt.format(p.done)} of ${fmt.format(p.of)}${left(p, p.done, p.of, '')}`;
     case 'done': return 'Writing the GLB…';
     default: return p.stage;
   }
@@ -292,7 +302,7 @@ async function run() {
   const ext = input.name.match(/\.[^.]+$/)?.[0].toLowerCase();
   options.name = (nk.cloud_extensions().includes(ext) ? input.name.slice(0, -ext.length) : input.name) || 'mesh';
   const abort = new AbortController();
-  const me = { options, started: performance.now(), fraction: 0, stage: 'setup', timer: setInterval(tick, 100), abort };
+  const me = { options, started: performance.now(), fraction: 0, stage: 'setup', stageStart: {}, timer: setInterval(tick, 100), abort };
   job = me;
   resultPanel.set(null);
   viewer.clear_mesh();
