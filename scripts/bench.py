@@ -47,10 +47,15 @@ def run_nkrr(cloud, method, options, out_dir):
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{p.stderr[-2000:]}")
     wall = float(re.findall(r"^wall ([0-9.]+)$", p.stderr, re.M)[-1])
-    # Progress goes to stderr, the summary line to stdout.
-    summary = [line for line in (p.stdout + p.stderr).splitlines() if "(total " in line][-1]
-    stages = {k: float(v) for k, v in re.findall(r"\b([a-z]+) ([0-9.]+)s\b", summary)}
-    return wall, stages
+    return wall, parse_summary(p.stdout + p.stderr)
+
+
+def parse_summary(output):
+    """{stage: seconds} from the summary line of `nkrr reconstruct`'s OUTPUT (stdout and stderr:
+    progress goes to stderr, the summary line "OUT: … features 0.12s, … (total 1.23s); …" to
+    stdout); the process's own total is under "total"."""
+    summary = [line for line in output.splitlines() if "(total " in line][-1]
+    return {k: float(v) for k, v in re.findall(r"\b([a-z]+) ([0-9.]+)s\b", summary)}
 
 
 def main():

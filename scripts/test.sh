@@ -19,8 +19,8 @@ echo "== scan-format fixtures: the committed files are what laspy/lazrs and pye5
 echo "== output meshes load in trimesh (GLB, PLY, OBJ, STL)"
 NKRR_BIN=target/debug/nkrr .venv-formats/bin/python -m pytest -q -p no:cacheprovider tests/formats
 
-echo "== the error split of scripts/eval_metrics.py on synthetic meshes with a known answer"
-.venv-formats/bin/python -m pytest -q -p no:cacheprovider scripts/test_eval_metrics.py
+echo "== the error split of scripts/eval_metrics.py on synthetic meshes with a known answer; the GPU benchmark's driver (fakes, no runs)"
+.venv-formats/bin/python -m pytest -q -p no:cacheprovider scripts/test_eval_metrics.py scripts/test_gpu_bench.py
 
 echo "== the cloud readers against independent writers (laspy, pye57, Python's PLY and text): 3000 cases"
 .venv-formats/bin/python scripts/fuzz_readers.py --cases 3000 --seed 1 --checker target/debug/examples/read_oracle --out target/fuzz-ci
