@@ -1,6 +1,7 @@
 // The reconstructed mesh: indexed triangles with vertex normals, lit by a key light that follows
 // the camera (above and to the left of it) plus a dim fill and a little specular. Faces seen
-// from behind are drawn in a darker, warmer tone so a hole or an inside-out patch is visible.
+// from behind are drawn in a darker, warmer tone so a hole or an inside-out patch is visible
+// (by `vs_back`, a little farther back: see there).
 // Vertex colours (the mesh's COLOR_0, alpha 255) replace the base colour where present.
 // `fs_wire` colours the optional wireframe (the same vertices drawn as a line list).
 
@@ -10,6 +11,8 @@ struct MeshView {
     // xyz: direction towards the key light (world space).
     light: vec4<f32>,
     base: vec4<f32>,
+    // x: how far `vs_back` pushes back faces away from the eye, in world units.
+    params: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> view: MeshView;
@@ -23,11 +26,27 @@ struct VOut {
 
 @vertex
 fn vs(@location(0) p: vec3<f32>, @location(1) n: vec3<f32>, @location(2) c: vec4<f32>) -> VOut {
+    return vertex(p, n, c);
+}
+
+fn vertex(p: vec3<f32>, n: vec3<f32>, c: vec4<f32>) -> VOut {
     var out: VOut;
     out.color = c;
     out.pos = view.view_proj * vec4<f32>(p, 1.0);
     out.world = p;
     out.normal = n;
+    return out;
+}
+
+// Back faces (drawn by their own pipeline, front faces culled) pushed away from the eye, so a
+// front face lying on them (two coincident layers) wins the depth test; a hole still shows them.
+@vertex
+fn vs_back(@location(0) p: vec3<f32>, @location(1) n: vec3<f32>, @location(2) c: vec4<f32>) -> VOut {
+    var out = vertex(p, n, c);
+    let away = p - view.eye.xyz;
+    let len = length(away);
+    let pushed = select(p, p + away * (view.params.x / len), len > 1e-20);
+    out.pos = view.view_proj * vec4<f32>(pushed, 1.0);
     return out;
 }
 

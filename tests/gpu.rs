@@ -125,3 +125,37 @@ fn oversized_binding_is_an_error_not_a_crash() {
     assert!(gpu.check_binding::<f32>("big", too_many).is_err());
     assert!(gpu.storage::<f32>("big", too_many).is_err());
 }
+
+/// Every shader of `shaders/` passes the device's validation (the viewer's mesh and point
+/// shaders run only in the page otherwise, where a broken one shows as an empty view).
+#[test]
+fn every_shader_validates() {
+    let gpu = Gpu::new_blocking().expect("a wgpu adapter (lavapipe will do)");
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
+    let entry = |s: &str| ["@compute", "@vertex", "@fragment"].iter().any(|e| s.contains(e));
+    let mut files: Vec<(String, String)> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "wgsl"))
+        .map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), std::fs::read_to_string(&p).unwrap()))
+        .collect();
+    files.sort();
+    // A file without entry points is a library, prepended to the shaders that name it.
+    let libraries: Vec<&(String, String)> = files.iter().filter(|(_, s)| !entry(s)).collect();
+    let mut seen = 0;
+    for (name, text) in files.iter().filter(|(_, s)| entry(s)) {
+        let mut source: String = libraries.iter().filter(|(l, _)| text.contains(l.as_str())).map(|(_, s)| s.as_str()).collect();
+        source.push_str(text);
+        // Templates (`{{NAME}}`, the decoder's array sizes) get a small size: the real ones are
+        // compiled by the network's own tests.
+        while let (Some(a), Some(b)) = (source.find("{{"), source.find("}}")) {
+            source.replace_range(a..b + 2, "4");
+        }
+        let scope = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(name), source: wgpu::ShaderSource::Wgsl(source.into()) });
+        let error = pollster::block_on(scope.pop());
+        assert!(error.is_none(), "{name}: {}", error.unwrap());
+        seen += 1;
+    }
+    assert!(seen >= 8, "{seen} shaders");
+}

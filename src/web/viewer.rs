@@ -38,7 +38,15 @@ struct MeshUniform {
     eye: [f32; 4],
     light: [f32; 4],
     base: [f32; 4],
+    /// x: how far back faces are pushed away from the eye (world units), see [`BACK_OFFSET`].
+    params: [f32; 4],
 }
+
+/// Back faces are drawn pushed away from the eye by this share of the mesh's radius, so that
+/// where two opposite layers coincide (a scene's walls: the prior reads a scanned sheet as a
+/// thin slab, and the last fit lays both faces on the sheet) the front face wins the depth test
+/// instead of flickering with the back face's warning colour. A hole still shows the inside.
+const BACK_OFFSET: f32 = 0.004;
 
 /// Orbit camera around a target: yaw/pitch in radians, distance along the view direction.
 struct Orbit {
@@ -130,6 +138,10 @@ pub struct Viewer {
     cloud: Option<CloudDraw>,
     point_size: f32,
     mesh_pipeline: wgpu::RenderPipeline,
+    /// The mesh's back faces (culled from `mesh_pipeline`), pushed back ([`BACK_OFFSET`]).
+    mesh_back_pipeline: wgpu::RenderPipeline,
+    /// Its bind group (each pipeline has its own default layout).
+    mesh_back_bind_group: wgpu::BindGroup,
     mesh_uniform: wgpu::Buffer,
     mesh_bind_group: wgpu::BindGroup,
     wire_pipeline: wgpu::RenderPipeline,
@@ -232,7 +244,7 @@ impl Viewer {
             layout: &pipeline.get_bind_group_layout(0),
             entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
         });
-        let (mesh_pipeline, mesh_uniform, mesh_bind_group) = mesh_pipeline(&gpu.device, format);
+        let ((mesh_pipeline, mesh_bind_group), (mesh_back_pipeline, mesh_back_bind_group), mesh_uniform) = mesh_pipeline(&gpu.device, format);
         let (wire_pipeline, wire_bind_group) = wire_pipeline(&gpu.device, format, &mesh_uniform);
         let depth = depth_view(&gpu.device, width, height);
         Ok(Viewer {
@@ -247,6 +259,8 @@ impl Viewer {
             cloud: None,
             point_size: 2.5,
             mesh_pipeline,
+            mesh_back_pipeline,
+            mesh_back_bind_group,
             wire_pipeline,
             wire_bind_group,
             mesh_uniform,
@@ -339,7 +353,16 @@ impl Viewer {
     /// inconsistent lengths or an index out of range.
     /// `colors` (optional): RGBA8 per vertex, the mesh's COLOR_0; without them the mesh is
     /// drawn in the viewer's base colour.
-    pub fn set_mesh(&mut self, positions: &[f32], normals: &[f32], indices: &[u32], colors: Option<Vec<u8>>) -> Result<(), JsError> {
+    /// `wireframe` (optional, default true): whether to build the wireframe's edge list, a sort
+    /// of every edge; a preview redrawn often (a scene's pieces) skips it and shows no wireframe.
+    pub fn set_mesh(
+        &mut self,
+        positions: &[f32],
+        normals: &[f32],
+        indices: &[u32],
+        colors: Option<Vec<u8>>,
+        wireframe: Option<bool>,
+    ) -> Result<(), JsError> {
         let n = positions.len() / 3;
         let colors = colors.filter(|c| !c.is_empty()).unwrap_or_else(|| vec![0; 4 * n]);
         if colors.len() != 4 * n {
@@ -387,14 +410,15 @@ impl Viewer {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
         };
         let had_content = self.cloud.is_some() || self.mesh.is_some();
-        let edges = unique_edges(indices);
+        let edges = if wireframe.unwrap_or(true) { unique_edges(indices) } else { Vec::new() };
         self.mesh = Some(MeshDraw {
             positions: buffer("mesh positions", bytemuck::cast_slice(positions), wgpu::BufferUsages::VERTEX),
             normals: buffer("mesh normals", bytemuck::cast_slice(normals), wgpu::BufferUsages::VERTEX),
             colors: buffer("mesh colours", &colors, wgpu::BufferUsages::VERTEX),
             indices: buffer("mesh indices", bytemuck::cast_slice(indices), wgpu::BufferUsages::INDEX),
             index_count: indices.len() as u32,
-            edges: buffer("mesh edges", bytemuck::cast_slice(&edges), wgpu::BufferUsages::INDEX),
+            // Never empty (a buffer slice cannot be); without a wireframe nothing is drawn from it.
+            edges: buffer("mesh edges", bytemuck::cast_slice(if edges.is_empty() { &[0u32, 0] } else { &edges[..] }), wgpu::BufferUsages::INDEX),
             edge_index_count: edges.len() as u32,
             center: (lo + hi) * 0.5,
             radius: 0.5 * (hi - lo).length(),
@@ -610,6 +634,7 @@ impl Viewer {
             eye: eye.extend(1.0).to_array(),
             light: light.extend(0.0).to_array(),
             base: MESH_COLOR,
+            params: [self.mesh.as_ref().map_or(0.0, |m| BACK_OFFSET * m.radius), 0.0, 0.0, 0.0],
         };
         self.gpu.queue.write_buffer(&self.mesh_uniform, 0, bytemuck::bytes_of(&mu));
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
@@ -633,8 +658,9 @@ impl Viewer {
             });
             if let (Some(m), true) = (&self.mesh, self.show_mesh) {
                 m.draw(&mut pass, &self.mesh_pipeline, &self.mesh_bind_group, &m.indices, m.index_count);
+                m.draw(&mut pass, &self.mesh_back_pipeline, &self.mesh_back_bind_group, &m.indices, m.index_count);
             }
-            if let (Some(m), true) = (&self.mesh, self.show_wire) {
+            if let (Some(m), true) = (&self.mesh, self.show_wire && self.mesh.as_ref().is_some_and(|m| m.edge_index_count > 0)) {
                 m.draw(&mut pass, &self.wire_pipeline, &self.wire_bind_group, &m.edges, m.edge_index_count);
             }
             if let (Some(c), true) = (&self.cloud, self.show_cloud) {
@@ -649,11 +675,10 @@ impl Viewer {
     }
 }
 
-/// The mesh's render pipeline (lit triangles), its uniform buffer and bind group.
-fn mesh_pipeline(
-    device: &wgpu::Device,
-    format: wgpu::TextureFormat,
-) -> (wgpu::RenderPipeline, wgpu::Buffer, wgpu::BindGroup) {
+/// The mesh's render pipelines with their bind groups (lit triangles: front faces, and back
+/// faces pushed back) and their uniform buffer.
+type PipelineAndGroup = (wgpu::RenderPipeline, wgpu::BindGroup);
+fn mesh_pipeline(device: &wgpu::Device, format: wgpu::TextureFormat) -> (PipelineAndGroup, PipelineAndGroup, wgpu::Buffer) {
     let uniform = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("mesh view"),
         size: std::mem::size_of::<MeshUniform>() as u64,
@@ -669,9 +694,10 @@ fn mesh_pipeline(
         stencil: Default::default(),
         bias: wgpu::DepthBiasState { constant: 2, slope_scale: 1.0, clamp: 0.0 },
     };
-    let (pipeline, bind_group) =
-        mesh_vertex_pipeline(device, format, &uniform, "mesh", "fs", wgpu::PrimitiveTopology::TriangleList, depth);
-    (pipeline, uniform, bind_group)
+    let triangles = |cull| wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, cull_mode: Some(cull), ..Default::default() };
+    let front = mesh_vertex_pipeline(device, format, &uniform, "mesh", ("vs", "fs"), triangles(wgpu::Face::Back), depth.clone());
+    let back = mesh_vertex_pipeline(device, format, &uniform, "mesh back faces", ("vs_back", "fs"), triangles(wgpu::Face::Front), depth);
+    (front, back, uniform)
 }
 
 /// Every undirected edge of the triangles once, as pairs of vertex indices (a line list).
@@ -701,18 +727,19 @@ fn wire_pipeline(
         stencil: Default::default(),
         bias: Default::default(),
     };
-    mesh_vertex_pipeline(device, format, uniform, "mesh wireframe", "fs_wire", wgpu::PrimitiveTopology::LineList, depth)
+    let lines = wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::LineList, ..Default::default() };
+    mesh_vertex_pipeline(device, format, uniform, "mesh wireframe", ("vs", "fs_wire"), lines, depth)
 }
 
 /// A pipeline over the mesh's vertex buffers (positions, normals, colours) and its view uniform, with
-/// `shaders/mesh.wgsl`'s vertex stage and the given fragment entry, topology and depth state.
+/// `shaders/mesh.wgsl`'s given (vertex, fragment) entries, primitive state and depth state.
 fn mesh_vertex_pipeline(
     device: &wgpu::Device,
     format: wgpu::TextureFormat,
     uniform: &wgpu::Buffer,
     label: &str,
-    fragment_entry: &str,
-    topology: wgpu::PrimitiveTopology,
+    (vertex_entry, fragment_entry): (&str, &str),
+    primitive: wgpu::PrimitiveState,
     depth: wgpu::DepthStencilState,
 ) -> (wgpu::RenderPipeline, wgpu::BindGroup) {
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -724,7 +751,7 @@ fn mesh_vertex_pipeline(
         layout: None,
         vertex: wgpu::VertexState {
             module: &module,
-            entry_point: Some("vs"),
+            entry_point: Some(vertex_entry),
             compilation_options: Default::default(),
             buffers: &[
                 Some(wgpu::VertexBufferLayout {
@@ -750,7 +777,7 @@ fn mesh_vertex_pipeline(
             compilation_options: Default::default(),
             targets: &[Some(format.into())],
         }),
-        primitive: wgpu::PrimitiveState { topology, ..Default::default() },
+        primitive,
         depth_stencil: Some(depth),
         multisample: Default::default(),
         multiview_mask: None,
