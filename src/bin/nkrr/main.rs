@@ -279,23 +279,19 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     tell!("GPU: {}", gpu.info.name);
     let engine = engine(gpu, weights)?;
     let mut last = String::new();
-    let mut tiles_started: Option<std::time::Instant> = None;
+    // When each stage with steps of about equal cost (tiles, tuning steps) began: the time left.
+    let mut started: std::collections::HashMap<&str, std::time::Instant> = std::collections::HashMap::new();
+    let mut left = move |stage: &'static str, done: usize, of: usize| -> String {
+        let t = started.entry(stage).or_insert_with(std::time::Instant::now).elapsed().as_secs_f64();
+        if done > 0 && done < of && t > 1.0 { format!(", about {} left", minutes(t / done as f64 * (of - done) as f64)) } else { String::new() }
+    };
     let mut report = |s: &Stage| {
         let line = match s {
             Stage::Features => "computing features".to_string(),
             Stage::Pairs => "sampling and labelling training pairs".to_string(),
-            Stage::Tuning { step, of, loss } => format!("tuning: step {step}/{of}, loss {loss:.6}"),
+            Stage::Tuning { step, of, loss } => format!("tuning: step {step}/{of}, loss {loss:.6}{}", left("tuning", *step, *of)),
             Stage::Meshing { evaluated, expected } => format!("meshing: {evaluated} field evaluations (of about {expected})"),
-            Stage::Tile { done, of } => {
-                // The time left from the tiles done so far (tiles cost about the same each).
-                let since = *tiles_started.get_or_insert_with(std::time::Instant::now);
-                match since.elapsed().as_secs_f64() {
-                    t if *done > 0 && done < of && t > 1.0 => {
-                        format!("tiles: {done} of {of}, about {} left", minutes(t / *done as f64 * (of - done) as f64))
-                    }
-                    _ => format!("tiles: {done} of {of}"),
-                }
-            }
+            Stage::Tile { done, of } => format!("tiles: {done} of {of}{}", left("tiles", *done, *of)),
             // Pieces of a scene's mesh are for viewers to show; the tile count says enough here.
             Stage::Meshed { .. } => return true,
             Stage::Done => "done".to_string(),
