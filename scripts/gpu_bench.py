@@ -238,25 +238,23 @@ def main(argv=None):
                     row["native"] = row["page"] = {"ok": False, "note": note}
                     rows.append(row)
                     continue
-                left = budget("native", m, s)
-                if left is None:
-                    row["native"] = {"ok": False, "note": "skipped: would end after the deadline"}
-                else:
-                    log(f"native {m} on {s} points")
+                def timed(half, run):
+                    """One half's run within the deadline's budget, timed for the next estimate."""
+                    left = budget(half, m, s)
+                    if left is None:
+                        return {"ok": False, "note": "skipped: would end after the deadline"}
+                    log(f"{half} {m} on {s} points")
                     t0 = time.monotonic()
-                    row["native"] = run_native(a.nkrr, cloud, m, left, tmp)
-                    last[("native", m)] = (POINTS[s], time.monotonic() - t0)
+                    out = run(left)
+                    last[(half, m)] = (POINTS[s], time.monotonic() - t0)
+                    return out
+
+                row["native"] = timed("native", lambda left: run_native(a.nkrr, cloud, m, left, tmp))
                 if why_not:
                     row["page"] = {"ok": False, "note": "browser half not run (see below)"}
                 else:
-                    left = budget("page", m, s)
-                    if left is None:
-                        row["page"] = {"ok": False, "note": "skipped: would end after the deadline"}
-                    else:
-                        log(f"page {m} on {s} points")
-                        t0 = time.monotonic()
-                        row["page"] = run_page(node, chromium, a.dist, cloud, m, gpu, left)
-                        last[("page", m)] = (POINTS[s], time.monotonic() - t0)
+                    row["page"] = timed("page", lambda left: run_page(node, chromium, a.dist, cloud, m, gpu, left))
+                    if "skipped" not in row["page"].get("note", ""):
                         page_adapter = page_adapter or page_adapter_name(row["page"])
                         page_software = page_software or bool(row["page"].get("software"))
                 rows.append(row)
