@@ -11,7 +11,7 @@
 # OPTIONS (scripts/gpu_bench.py --help): --nkrr BIN --dist DIR --clouds DIR --out DIR
 # --sizes 500,3k,10k,100k --methods network,nkrr --deadline-s 280 --gpu real|swiftshader
 # --chromium PATH --node PATH --no-page. Environment: NKRR, DIST, CLOUDS, OUT_DIR, CHROMIUM,
-# NODE, DEADLINE_S, DRY_RUN=1. Defaults: .gpubench/{nkrr,dist,clouds} when packed, else
+# NODE, DEADLINE_S, DRY_RUN=1, NATIVE_ICD (the CLI on another Vulkan driver). Defaults: .gpubench/{nkrr,dist,clouds} when packed, else
 # target/release/nkrr, dist/, target/results/data; OUT_DIR target/gpu-bench.
 # The lent machine and its exact command line: docs/speed.md, "GPU benchmark (issue 27)".
 set -euo pipefail
@@ -55,5 +55,8 @@ else
     [ -f "$egl" ] && export __EGL_VENDOR_LIBRARY_FILENAMES=$egl
     command -v nvidia-smi >/dev/null && nvidia-smi -L >&2 || true
 fi
+# NATIVE_ICD: the CLI on another Vulkan driver, e.g. Chromium's own SwiftShader
+# (/usr/lib/chromium/vk_swiftshader_icd.json) for page/native on the same driver in a dry run.
+if [ -n "${NATIVE_ICD:-}" ]; then export VK_DRIVER_FILES=$NATIVE_ICD; fi
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-$(mktemp -d)}
 exec python3 scripts/gpu_bench.py "$@"
