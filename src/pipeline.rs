@@ -118,7 +118,17 @@ pub struct Reconstruction {
     /// the device does not count its memory (see [`crate::gpu::ledger`]).
     pub gpu_peaks: Vec<(&'static str, u64)>,
     /// A scene's tiles and its blend's size ([`crate::scene`]); None for one object.
-    pub scene: Option<crate::scene::SceneReport>,
+    pub scene: Option<SceneReport>,
+}
+
+/// What a scene's sweep did ([`crate::scene`]), for the report and the tests.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SceneReport {
+    pub tiles: usize,
+    /// Band nodes blended, in all.
+    pub nodes: usize,
+    /// The most band nodes held at once: the sweep's front.
+    pub peak_nodes: usize,
 }
 
 impl Reconstruction {

@@ -23,7 +23,7 @@ use crate::field::{Field, EVALUATION_CHUNK};
 use crate::gpu::now;
 use crate::mesh::refine::KeyMap;
 use crate::mesh::{ActiveCells, ExtractError, ExtractStats, FieldError, Mesh};
-use crate::pipeline::{Engine, PipelineError, Reconstruction, Stage};
+use crate::pipeline::{Engine, PipelineError, Reconstruction, SceneReport, Stage};
 use crate::settings::{Method, Settings, Tiles};
 use crate::units::Units;
 
@@ -438,16 +438,6 @@ pub async fn reconstruct(
         gpu_peaks: Vec::new(),
         scene: Some(report),
     })
-}
-
-/// What a scene's sweep did, for the report and the tests.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct SceneReport {
-    pub tiles: usize,
-    /// Band nodes blended, in all.
-    pub nodes: usize,
-    /// The most band nodes held at once: the sweep's front.
-    pub peak_nodes: usize,
 }
 
 /// Cells along a block of the sweep: half a tile, so that a block's nodes (and the nodes one
