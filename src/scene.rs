@@ -53,6 +53,11 @@ pub const MAX_AUTO_CELL_M: f64 = 0.025;
 /// (it was trained on 500 to 10k), and a very sparse scan would otherwise make tiles by the
 /// thousand.
 pub const MIN_CAPPED_TILE_POINTS: usize = 1_500;
+/// The overlap in grid cells: [`OVERLAP`] of a tile's [`TILE_CELLS`].
+fn overlap_cells() -> i64 {
+    (OVERLAP * TILE_CELLS as f64).round() as i64
+}
+
 /// Cells around each point's cell whose corners are evaluated.
 pub const BAND: i64 = 2;
 /// Fewer points than this in a tile's cube: nothing to reconstruct there.
@@ -245,13 +250,9 @@ impl TilePlan {
         for (i, p) in points.iter().enumerate() {
             let lo = [0, 1, 2].map(|a| ((p[a] as f64 - self.origin[a] - o) / self.size).floor() as i64);
             let hi = [0, 1, 2].map(|a| ((p[a] as f64 - self.origin[a] + o) / self.size).floor() as i64);
-            for z in lo[2]..=hi[2] {
-                for y in lo[1]..=hi[1] {
-                    for x in lo[0]..=hi[0] {
-                        if let Some(&t) = index.get(&[x, y, z]) {
-                            members[t].push(i as u32);
-                        }
-                    }
+            for t in boxed(lo, hi) {
+                if let Some(&t) = index.get(&t) {
+                    members[t].push(i as u32);
                 }
             }
         }
@@ -278,7 +279,7 @@ impl TilePlan {
     fn band_nodes(&self, tile: [i64; 3], points: &[[f32; 3]]) -> Vec<u64> {
         let r = self.resolution as i64;
         let per = TILE_CELLS as i64;
-        let o = (OVERLAP * TILE_CELLS as f64).round() as i64;
+        let o = overlap_cells();
         // Nodes strictly inside the overlap's outer border (weight above 0).
         let lo = tile.map(|t| t * per - o + 1);
         let hi = tile.map(|t| (t + 1) * per + o - 1);
@@ -469,7 +470,7 @@ struct Sweep<'a> {
 /// The tiles (per axis, first and last) that weigh a node of block `b` or one cell above it:
 /// tile `t` weighs node `n` when `t·C − o < n < (t + 1)·C + o` (C cells a tile, o the overlap's).
 fn tiles_of_block(b: i64) -> (i64, i64) {
-    let (c, o) = (TILE_CELLS as i64, (OVERLAP * TILE_CELLS as f64).round() as i64);
+    let (c, o) = (TILE_CELLS as i64, overlap_cells());
     let (lo, hi) = (b * BLOCK, (b + 1) * BLOCK);
     ((lo - o).div_euclid(c), (hi + o + c - 1).div_euclid(c) - 1)
 }
@@ -529,7 +530,7 @@ impl<'a> Sweep<'a> {
         let start = self.mesh.indices.len();
         // Only the blocks this tile weighs can have been completed by it: those within its
         // cube with the overlap, and one more below.
-        let o = (OVERLAP * TILE_CELLS as f64).round() as i64;
+        let o = overlap_cells();
         let c = TILE_CELLS as i64;
         let lo = tile.map(|t| (t * c - o).div_euclid(BLOCK) - 1);
         let hi = tile.map(|t| ((t + 1) * c + o).div_euclid(BLOCK));
@@ -664,17 +665,9 @@ mod tests {
         };
         let mut sweep = Sweep::new(&plan);
         let mut whole: HashMap<u64, (f32, f32)> = HashMap::new();
-        let o = OVERLAP * plan.size;
         let mut pieces = 0;
-        for (t, _) in &plan.tiles {
-            let mine: Vec<[f32; 3]> = pts
-                .iter()
-                .filter(|p| (0..3).all(|a| {
-                    let c0 = plan.origin[a] + t[a] as f64 * plan.size;
-                    (p[a] as f64) >= c0 - o && (p[a] as f64) < c0 + plan.size + o
-                }))
-                .copied()
-                .collect();
+        for ((t, _), ids) in plan.tiles.iter().zip(plan.members(&pts)) {
+            let mine: Vec<[f32; 3]> = ids.iter().map(|&i| pts[i as usize]).collect();
             for k in plan.band_nodes(*t, &mine) {
                 let n = plan.node_of_key(k);
                 sweep.add(*t, k, field(n));
