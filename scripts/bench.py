@@ -10,8 +10,10 @@ The clouds are of one eval mesh (spot, a report shape of docs/fit.md; tests/data
 eval protocol's noise: NAME-500/3k/10k.ply of target/results/data and 100k points made the same
 way (scripts/results_clouds.py's scale clouds). nkrr: `/usr/bin/time nkrr reconstruct` (a whole
 process: start-up, reading, the adapter, every stage and the writing; the stage times are the
-CLI's own), the median of --repeat runs. Screened Poisson: tests/peers/spsr.py (Open3D, PCA
-normals + orientation + depth-8 Poisson, file reading excluded), the median of --repeat runs.
+CLI's own), the median of --repeat runs. Screened Poisson: `tests/peers/spsr.py --plain` on
+one cloud (Open3D, PCA normals + orientation + depth-8 Poisson), also timed as a whole process
+(Python's start-up, Open3D's import, reading and writing included), run right after each nkrr
+run so that the two see the same machine; the ratio is the median of the runs' ratios (issue 27).
 Prints a Markdown table and writes target/bench/bench.json.
 """
 import argparse
@@ -24,13 +26,16 @@ import sys
 import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHAPE = "spot"
-CLOUDS = {
-    "500": "target/results/data/spot-500.ply",
-    "3k": "target/results/data/spot-3k.ply",
-    "10k": "target/results/data/spot-10k.ply",
-    "100k": "target/results/data/scale/scale-100000.ply",
-}
+SIZES = ["500", "3k", "10k", "100k"]
+
+
+def cloud_path(shape, size):
+    """The SIZE cloud of SHAPE (100k: spot's scale cloud only)."""
+    if size == "100k":
+        if shape != "spot":
+            raise SystemExit("--sizes 100k: only spot has a 100k cloud (scripts/results_clouds.py)")
+        return "target/results/data/scale/scale-100000.ply"
+    return f"target/results/data/{shape}-{size}.ply"
 STAGES = ["features", "pairs", "tuning", "mesh", "fit"]
 
 
@@ -63,53 +68,58 @@ def main():
     ap.add_argument("--sizes", default="500,3k,10k,100k")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--methods", default="nkrr,network")
+    ap.add_argument("--shapes", default="spot", help="eval shapes, each on every size (500/3k/10k)")
     ap.add_argument("--out", default="target/bench")
     ap.add_argument("options", nargs="*", help="nkrr reconstruct options (after --)")
     a = ap.parse_args()
     sizes = a.sizes.split(",")
     for s in sizes:
-        if s not in CLOUDS:
-            raise SystemExit(f"--sizes: {s} is not one of {', '.join(CLOUDS)}")
+        if s not in SIZES:
+            raise SystemExit(f"--sizes: {s} is not one of {', '.join(SIZES)}")
+    shapes = a.shapes.split(",")
     out = os.path.join(ROOT, a.out)
     data = os.path.join(out, "data")
     os.makedirs(data, exist_ok=True)
     # spsr.py reads DATA/NAME-SIZE.ply: link the clouds under one name.
-    for s in sizes:
-        link = os.path.join(data, f"{SHAPE}-{s}.ply")
-        if os.path.lexists(link):
-            os.remove(link)
-        os.symlink(os.path.join(ROOT, CLOUDS[s]), link)
+    for shape in shapes:
+        for s in sizes:
+            link = os.path.join(data, f"{shape}-{s}.ply")
+            if os.path.lexists(link):
+                os.remove(link)
+            os.symlink(os.path.join(ROOT, cloud_path(shape, s)), link)
 
-    log(f"screened Poisson, {a.repeat} runs per cloud")
-    spsr_out = os.path.join(out, "spsr")
-    subprocess.run([os.path.join(ROOT, ".venv-peers/bin/python"), "tests/peers/spsr.py", "--data", data,
-                    "--sizes", ",".join(sizes), "--shapes", SHAPE, "--out", spsr_out, "--repeat", str(a.repeat)],
-                   cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
-    spsr = {}
-    for line in open(os.path.join(spsr_out, "spsr.jsonl")):
-        row = json.loads(line)
-        spsr[row["size"]] = statistics.median(row["runs_s"])
+    def run_spsr(shape, s, tmp):
+        """One whole `spsr.py --plain` process on the SIZE cloud: wall seconds."""
+        cmd = ["/usr/bin/time", "-f", "wall %e", os.path.join(ROOT, ".venv-peers/bin/python"), "tests/peers/spsr.py",
+               "--plain", "--data", data, "--sizes", s, "--shapes", shape, "--out", os.path.join(tmp, "spsr")]
+        p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+        if p.returncode != 0:
+            raise SystemExit(f"{' '.join(cmd)} failed:\n{p.stderr[-2000:]}")
+        return float(re.findall(r"^wall ([0-9.]+)$", p.stderr, re.M)[-1])
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for s in sizes:
-            cloud = os.path.join(ROOT, CLOUDS[s])
+        for shape, s in [(shape, s) for s in sizes for shape in shapes]:
+            cloud = os.path.join(ROOT, cloud_path(shape, s))
             for method in a.methods.split(","):
-                runs = []
+                runs, spsr = [], []
                 for i in range(a.repeat):
-                    log(f"{method} on {s} points, run {i + 1}/{a.repeat}")
+                    log(f"{method} on {shape}-{s}, then screened Poisson, run {i + 1}/{a.repeat}")
                     runs.append(run_nkrr(cloud, method, a.options, tmp))
+                    spsr.append(run_spsr(shape, s, tmp))
                 walls = [w for w, _ in runs]
                 median = statistics.median(walls)
                 stages = runs[walls.index(median)][1] if median in walls else runs[0][1]
-                rows.append({"size": s, "method": method, "wall_s": median, "runs_s": walls,
-                             "stages_s": stages, "spsr_s": spsr[s], "ratio": median / spsr[s]})
+                ratios = [w / p for w, p in zip(walls, spsr)]
+                rows.append({"shape": shape, "size": s, "method": method, "wall_s": median, "runs_s": walls,
+                             "stages_s": stages, "spsr_s": statistics.median(spsr), "spsr_runs_s": spsr,
+                             "ratio": statistics.median(ratios), "ratios": ratios})
 
-    print(f"| points | method | {' | '.join(STAGES)} | end to end s (median of {a.repeat}) | screened Poisson s | ratio |")
-    print("|---" * (len(STAGES) + 5) + "|")
+    print(f"| shape | points | method | {' | '.join(STAGES)} | end to end s (median of {a.repeat}) | screened Poisson end to end s | ratio (median of pairs) |")
+    print("|---" * (len(STAGES) + 6) + "|")
     for r in rows:
         st = " | ".join(f"{r['stages_s'][k]:.2f}" if k in r["stages_s"] else "-" for k in STAGES)
-        print(f"| {r['size']} | {r['method']} | {st} | {r['wall_s']:.2f} | {r['spsr_s']:.2f} | {r['ratio']:.1f}x |")
+        print(f"| {r['shape']} | {r['size']} | {r['method']} | {st} | {r['wall_s']:.2f} | {r['spsr_s']:.2f} | {r['ratio']:.1f}x |")
     with open(os.path.join(out, "bench.json"), "w") as f:
         json.dump({"options": a.options, "repeat": a.repeat, "cores": os.cpu_count(), "rows": rows}, f, indent=1)
 

@@ -30,7 +30,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench import CLOUDS, parse_summary  # noqa: E402  (the CPU benchmark's clouds and parsing)
+from bench import cloud_path as bench_cloud, parse_summary  # noqa: E402  (the CPU benchmark's clouds and parsing)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 POINTS = {"500": 500, "3k": 3000, "10k": 10000, "100k": 100000}
@@ -46,8 +46,9 @@ def log(msg):
 
 def cloud_path(clouds, size):
     """The cloud of SIZE points: CLOUDS/… as laid out by scripts/results_clouds.py (bench.py's
-    CLOUDS, relative to its data folder), else the committed eval cloud (3k, 10k)."""
-    rel = CLOUDS[size][len(DATA_PREFIX):] if CLOUDS[size].startswith(DATA_PREFIX) else CLOUDS[size]
+    clouds of spot, relative to its data folder), else the committed eval cloud (3k, 10k)."""
+    full = bench_cloud("spot", size)
+    rel = full[len(DATA_PREFIX):] if full.startswith(DATA_PREFIX) else full
     for p in (os.path.join(clouds, rel), os.path.join(ROOT, "tests/data/eval", os.path.basename(rel))):
         if os.path.isfile(p):
             return p

@@ -56,9 +56,12 @@ def main():
     names = sorted(f[:-4] for f in os.listdir(data) if f.endswith(".obj"))
     for name in names:
         for f in (f"{name}.obj", f"{name}-3k.ply", f"{name}-10k.ply"):
-            dst = os.path.join(work, f)
-            if not os.path.exists(dst):
-                os.symlink(os.path.abspath(os.path.join(data, f)), dst)
+            dst, src = os.path.join(work, f), os.path.abspath(os.path.join(data, f))
+            # A link left by another checkout (a worktree since removed) dangles: replace it.
+            if os.path.islink(dst) and os.readlink(dst) != src:
+                os.remove(dst)
+            if not os.path.lexists(dst):
+                os.symlink(src, dst)
         out = os.path.join(work, f"{name}-500.ply")
         if not os.path.exists(out):
             mesh = trimesh.load(os.path.join(data, f"{name}.obj"), process=False, force="mesh")

@@ -95,6 +95,9 @@ def main():
                     help="remove the vertices of the lowest TRIM percent of Poisson density")
     ap.add_argument("--k", type=int, default=30, help="neighbours for PCA and orientation")
     ap.add_argument("--metrics-cmd", default="", help="run as CMD GT.obj RECON.obj")
+    ap.add_argument("--plain", action="store_true",
+                    help="only what a user runs (read, normals, Poisson, write): no component count "
+                         "or watertight tests, so the whole process can be timed (scripts/bench.py)")
     ap.add_argument("--repeat", type=int, default=1,
                     help="run each cloud N times and report the fastest times (load noise)")
     a = ap.parse_args()
@@ -122,7 +125,6 @@ def main():
             recon = os.path.join(a.out, f"{name}-{size}.obj")
             o3d.io.write_triangle_mesh(recon, mesh, write_vertex_normals=False,
                                        write_vertex_colors=False, write_triangle_uvs=False)
-            comps = np.asarray(mesh.cluster_connected_triangles()[1])
             row = {
                 "method": "spsr", "shape": name, "size": size, "points": len(pcd.points),
                 "depth": a.depth, "trim": a.trim, "k": a.k, "cores": os.cpu_count(),
@@ -130,13 +132,16 @@ def main():
                 "orient_s": round(t_orient, 3), "poisson_s": round(t_poisson, 3),
                 "runs_s": runs,
                 "vertices": len(mesh.vertices), "faces": len(mesh.triangles),
-                "components": int(len(comps)),
-                # edge-manifold with no boundary edge = closed 2-manifold surface;
-                # Open3D's is_watertight also asks vertex-manifold and no self-intersection.
-                "closed_manifold": bool(mesh.is_edge_manifold(allow_boundary_edges=False)),
-                "o3d_watertight": bool(mesh.is_watertight()),
                 "recon": recon,
             }
+            if not a.plain:
+                row.update({
+                    "components": int(len(np.asarray(mesh.cluster_connected_triangles()[1]))),
+                    # edge-manifold with no boundary edge = closed 2-manifold surface;
+                    # Open3D's is_watertight also asks vertex-manifold and no self-intersection.
+                    "closed_manifold": bool(mesh.is_edge_manifold(allow_boundary_edges=False)),
+                    "o3d_watertight": bool(mesh.is_watertight()),
+                })
             if a.metrics_cmd:
                 row.update(run_metrics(a.metrics_cmd, os.path.join(a.data, f"{name}.obj"), recon))
             line = json.dumps(row)
