@@ -197,41 +197,27 @@ function stageText(p, opts) {
 }
 
 // A scene's finished pieces (the worker's 'meshed' events), drawn while the other tiles run;
-// the result replaces them. Redrawn at most every PREVIEW_MS: each draw uploads all pieces.
+// the result replaces them. Each piece goes to the viewer's GPU buffers as it comes and is not
+// kept here (a 5M-point room sends hundreds: gathering them for each redraw grew the page past a
+// gigabyte); the view is redrawn at most every PREVIEW_MS.
 const PREVIEW_MS = 400;
 const preview = {
-  pieces: [],
   timer: null,
   triangles: 0,
   add(p) {
-    this.pieces.push(p);
+    if (!job) return;
+    try {
+      viewer.add_mesh_piece(p.positions, p.normals, p.indices);
+    } catch (e) {
+      console.warn(`a piece of the scene is not shown: ${e.message ?? e}`);
+      return;
+    }
     this.triangles += p.indices.length / 3;
-    // Each draw copies every piece: less often as they grow (every 4 s at 8M triangles).
-    this.timer ??= setTimeout(() => this.draw(), Math.max(PREVIEW_MS, this.triangles / 2000));
+    this.timer ??= setTimeout(() => this.draw(), PREVIEW_MS);
   },
   draw() {
     this.timer = null;
-    if (!job || !this.pieces.length) return;
-    const vertices = this.pieces.reduce((n, p) => n + p.positions.length, 0);
-    const positions = new Float32Array(vertices);
-    const normals = new Float32Array(vertices);
-    const indices = new Uint32Array(this.triangles * 3);
-    let v = 0;
-    let i = 0;
-    for (const p of this.pieces) {
-      positions.set(p.positions, v);
-      normals.set(p.normals, v);
-      for (let k = 0; k < p.indices.length; k++) indices[i + k] = p.indices[k] + v / 3;
-      v += p.positions.length;
-      i += p.indices.length;
-    }
-    try {
-      viewer.set_mesh(positions, normals, indices, undefined, false);
-    } catch (e) {
-      console.warn(`the scene's pieces are not shown: ${e.message ?? e}`);
-      this.pieces = [];
-      return;
-    }
+    if (!job || !this.triangles) return;
     $('show-mesh').checked = true;
     applyVisibility();
     mark('preview', String(this.triangles));
@@ -239,8 +225,8 @@ const preview = {
   /** Forgets the pieces (and removes them from the view unless `keep`: the result replaces them). */
   reset(keep = false) {
     clearTimeout(this.timer);
-    const shown = this.pieces.length > 0;
-    Object.assign(this, { pieces: [], timer: null, triangles: 0 });
+    const shown = this.triangles > 0;
+    Object.assign(this, { timer: null, triangles: 0 });
     mark('preview', null);
     if (shown && !keep) {
       viewer.clear_mesh();

@@ -34,7 +34,9 @@ async function run({ id, bytes, options, cancelFlag }) {
   if (stopped()) { postMessage({ type: 'cancelled', id }); return; }
   const onProgress = (p) => {
     const go = !stopped();
-    if (go) postMessage({ type: 'progress', id, ...p });
+    // A scene's piece is handed over, not copied (hundreds of them in a big scan).
+    const transfer = p.stage === 'meshed' ? [p.positions.buffer, p.normals.buffer, p.indices.buffer] : [];
+    if (go) postMessage({ type: 'progress', id, ...p }, transfer);
     return go;
   };
   try {

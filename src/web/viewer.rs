@@ -146,7 +146,9 @@ pub struct Viewer {
     mesh_bind_group: wgpu::BindGroup,
     wire_pipeline: wgpu::RenderPipeline,
     wire_bind_group: wgpu::BindGroup,
-    mesh: Option<MeshDraw>,
+    /// The mesh as drawn: one piece for a result, or a scene's finished pieces as they come
+    /// (each uploaded once, [`Viewer::add_mesh_piece`]).
+    mesh: Vec<MeshDraw>,
     show_cloud: bool,
     show_mesh: bool,
     show_wire: bool,
@@ -265,7 +267,7 @@ impl Viewer {
             wire_bind_group,
             mesh_uniform,
             mesh_bind_group,
-            mesh: None,
+            mesh: Vec::new(),
             show_cloud: true,
             show_mesh: true,
             show_wire: false,
@@ -295,7 +297,7 @@ impl Viewer {
 
     /// Shows `cloud` and frames it; a mesh of an earlier cloud is removed.
     pub fn set_cloud(&mut self, cloud: &Cloud) {
-        self.mesh = None;
+        self.mesh.clear();
         let pc = &cloud.parsed.cloud;
         let Some(b) = pc.bounds() else {
             self.cloud = None;
@@ -363,81 +365,44 @@ impl Viewer {
         colors: Option<Vec<u8>>,
         wireframe: Option<bool>,
     ) -> Result<(), JsError> {
-        let n = positions.len() / 3;
-        let colors = colors.filter(|c| !c.is_empty()).unwrap_or_else(|| vec![0; 4 * n]);
-        if colors.len() != 4 * n {
-            return Err(JsError::new(&format!("set_mesh: {} colour bytes for {n} vertices (4 per vertex)", colors.len())));
-        }
-        if positions.len() % 3 != 0 || normals.len() != positions.len() {
-            return Err(JsError::new(&format!(
-                "set_mesh: {} position and {} normal floats (both must be 3 per vertex)",
-                positions.len(),
-                normals.len()
-            )));
-        }
-        if indices.len() % 3 != 0 {
-            return Err(JsError::new(&format!("set_mesh: {} indices is not a multiple of 3", indices.len())));
-        }
-        if let Some(&i) = indices.iter().find(|&&i| i as usize >= n) {
-            return Err(JsError::new(&format!("set_mesh: index {i} is out of range ({n} vertices)")));
-        }
-        if n == 0 || indices.is_empty() {
-            self.mesh = None;
-            return Ok(());
-        }
-        let max = self.gpu.limits.max_buffer_size;
-        if (positions.len() as u64) * 4 > max || (indices.len() as u64) * 4 > max {
-            return Err(JsError::new(&format!(
-                "the mesh ({n} vertices, {} triangles) is too large to show on this GPU (buffers up to {} MiB); \
-                 download it instead",
-                indices.len() / 3,
-                max >> 20
-            )));
-        }
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for p in positions.chunks_exact(3) {
-            let p = Vec3::new(p[0], p[1], p[2]);
-            if p.is_finite() {
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
-        }
-        if !lo.is_finite() {
-            return Err(JsError::new("set_mesh: no finite vertex position"));
-        }
-        let device = &self.gpu.device;
-        let buffer = |label: &str, contents: &[u8], usage| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
-        };
-        let had_content = self.cloud.is_some() || self.mesh.is_some();
-        let edges = if wireframe.unwrap_or(true) { unique_edges(indices) } else { Vec::new() };
-        self.mesh = Some(MeshDraw {
-            positions: buffer("mesh positions", bytemuck::cast_slice(positions), wgpu::BufferUsages::VERTEX),
-            normals: buffer("mesh normals", bytemuck::cast_slice(normals), wgpu::BufferUsages::VERTEX),
-            colors: buffer("mesh colours", &colors, wgpu::BufferUsages::VERTEX),
-            indices: buffer("mesh indices", bytemuck::cast_slice(indices), wgpu::BufferUsages::INDEX),
-            index_count: indices.len() as u32,
-            // Never empty (a buffer slice cannot be); without a wireframe nothing is drawn from it.
-            edges: buffer("mesh edges", bytemuck::cast_slice(if edges.is_empty() { &[0u32, 0] } else { &edges[..] }), wgpu::BufferUsages::INDEX),
-            edge_index_count: edges.len() as u32,
-            center: (lo + hi) * 0.5,
-            radius: 0.5 * (hi - lo).length(),
-        });
+        let piece = self.upload(positions, normals, indices, colors, wireframe.unwrap_or(true))?;
+        let had_content = self.cloud.is_some() || !self.mesh.is_empty();
+        self.mesh = piece.into_iter().collect();
         if !had_content {
             self.fit();
         }
         Ok(())
     }
 
+    /// Adds a piece to the mesh shown (a scene's finished block, while the other tiles run),
+    /// with the same arguments and checks as [`Viewer::set_mesh`] but no colours and no
+    /// wireframe. Each piece goes to the GPU once, as it comes: nothing is gathered or copied
+    /// again on the page (a 5M-point room sends hundreds of pieces); [`Viewer::set_mesh`] or
+    /// [`Viewer::clear_mesh`] replaces them all.
+    pub fn add_mesh_piece(&mut self, positions: &[f32], normals: &[f32], indices: &[u32]) -> Result<(), JsError> {
+        let had_content = self.cloud.is_some() || !self.mesh.is_empty();
+        self.mesh.extend(self.upload(positions, normals, indices, None, false)?);
+        if !had_content {
+            self.fit();
+        }
+        Ok(())
+    }
+
+    /// Triangles of the mesh shown (all pieces).
+    #[wasm_bindgen(getter)]
+    pub fn mesh_triangles(&self) -> f64 {
+        self.mesh.iter().map(|m| m.index_count as f64 / 3.0).sum()
+    }
+
     /// Removes the mesh.
     pub fn clear_mesh(&mut self) {
-        self.mesh = None;
+        self.mesh.clear();
     }
 
     /// Whether a mesh is loaded.
     #[wasm_bindgen(getter)]
     pub fn has_mesh(&self) -> bool {
-        self.mesh.is_some()
+        !self.mesh.is_empty()
     }
 
     /// Chooses what is drawn: the cloud, the mesh, or both.
@@ -455,9 +420,8 @@ impl Viewer {
     pub fn fit(&mut self) {
         let spheres = [
             self.cloud.as_ref().map(|c| (c.center, c.radius)),
-            self.mesh.as_ref().map(|m| (m.center, m.radius)),
         ];
-        let mut it = spheres.into_iter().flatten();
+        let mut it = spheres.into_iter().flatten().chain(self.mesh.iter().map(|m| (m.center, m.radius)));
         let Some(first) = it.next() else { return };
         let (center, radius) = it.fold(first, |(c0, r0), (c1, r1)| {
             // The smallest sphere holding both.
@@ -525,7 +489,7 @@ impl Viewer {
         if let Some(c) = &self.cloud {
             b += c.positions.size() + c.colors.size();
         }
-        if let Some(m) = &self.mesh {
+        for m in &self.mesh {
             b += m.positions.size() + m.normals.size() + m.colors.size() + m.indices.size() + m.edges.size();
         }
         b as f64
@@ -608,6 +572,68 @@ impl Viewer {
 }
 
 impl Viewer {
+    /// Checks a mesh's arrays (see [`Viewer::set_mesh`]) and uploads them; `None` when empty.
+    fn upload(&self, positions: &[f32], normals: &[f32], indices: &[u32], colors: Option<Vec<u8>>, wireframe: bool) -> Result<Option<MeshDraw>, JsError> {
+        let n = positions.len() / 3;
+        let colors = colors.filter(|c| !c.is_empty()).unwrap_or_else(|| vec![0; 4 * n]);
+        if colors.len() != 4 * n {
+            return Err(JsError::new(&format!("set_mesh: {} colour bytes for {n} vertices (4 per vertex)", colors.len())));
+        }
+        if positions.len() % 3 != 0 || normals.len() != positions.len() {
+            return Err(JsError::new(&format!(
+                "set_mesh: {} position and {} normal floats (both must be 3 per vertex)",
+                positions.len(),
+                normals.len()
+            )));
+        }
+        if indices.len() % 3 != 0 {
+            return Err(JsError::new(&format!("set_mesh: {} indices is not a multiple of 3", indices.len())));
+        }
+        if let Some(&i) = indices.iter().find(|&&i| i as usize >= n) {
+            return Err(JsError::new(&format!("set_mesh: index {i} is out of range ({n} vertices)")));
+        }
+        if n == 0 || indices.is_empty() {
+            return Ok(None);
+        }
+        let max = self.gpu.limits.max_buffer_size;
+        if (positions.len() as u64) * 4 > max || (indices.len() as u64) * 4 > max {
+            return Err(JsError::new(&format!(
+                "the mesh ({n} vertices, {} triangles) is too large to show on this GPU (buffers up to {} MiB); \
+                 download it instead",
+                indices.len() / 3,
+                max >> 20
+            )));
+        }
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for p in positions.chunks_exact(3) {
+            let p = Vec3::new(p[0], p[1], p[2]);
+            if p.is_finite() {
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+        }
+        if !lo.is_finite() {
+            return Err(JsError::new("set_mesh: no finite vertex position"));
+        }
+        let device = &self.gpu.device;
+        let buffer = |label: &str, contents: &[u8], usage| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
+        };
+        let edges = if wireframe { unique_edges(indices) } else { Vec::new() };
+        Ok(Some(MeshDraw {
+            positions: buffer("mesh positions", bytemuck::cast_slice(positions), wgpu::BufferUsages::VERTEX),
+            normals: buffer("mesh normals", bytemuck::cast_slice(normals), wgpu::BufferUsages::VERTEX),
+            colors: buffer("mesh colours", &colors, wgpu::BufferUsages::VERTEX),
+            indices: buffer("mesh indices", bytemuck::cast_slice(indices), wgpu::BufferUsages::INDEX),
+            index_count: indices.len() as u32,
+            // Never empty (a buffer slice cannot be); without a wireframe nothing is drawn from it.
+            edges: buffer("mesh edges", bytemuck::cast_slice(if edges.is_empty() { &[0u32, 0] } else { &edges[..] }), wgpu::BufferUsages::INDEX),
+            edge_index_count: edges.len() as u32,
+            center: (lo + hi) * 0.5,
+            radius: 0.5 * (hi - lo).length(),
+        }))
+    }
+
     fn draw(&mut self, target: &wgpu::TextureView) {
         let aspect = self.config.width as f32 / self.config.height as f32;
         let (use_color, height) = match &self.cloud {
@@ -634,7 +660,9 @@ impl Viewer {
             eye: eye.extend(1.0).to_array(),
             light: light.extend(0.0).to_array(),
             base: MESH_COLOR,
-            params: [self.mesh.as_ref().map_or(0.0, |m| BACK_OFFSET * m.radius), 0.0, 0.0, 0.0],
+            // The largest piece's radius: a result is one piece; a preview's pieces are blocks of
+            // one scene, whose offset need only clear the coincident layers within a block.
+            params: [BACK_OFFSET * self.mesh.iter().map(|m| m.radius).fold(0.0, f32::max), 0.0, 0.0, 0.0],
         };
         self.gpu.queue.write_buffer(&self.mesh_uniform, 0, bytemuck::bytes_of(&mu));
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
@@ -656,11 +684,11 @@ impl Viewer {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            if let (Some(m), true) = (&self.mesh, self.show_mesh) {
+            for m in self.mesh.iter().filter(|_| self.show_mesh) {
                 m.draw(&mut pass, &self.mesh_pipeline, &self.mesh_bind_group, &m.indices, m.index_count);
                 m.draw(&mut pass, &self.mesh_back_pipeline, &self.mesh_back_bind_group, &m.indices, m.index_count);
             }
-            if let (Some(m), true) = (&self.mesh, self.show_wire && self.mesh.as_ref().is_some_and(|m| m.edge_index_count > 0)) {
+            for m in self.mesh.iter().filter(|m| self.show_wire && m.edge_index_count > 0) {
                 m.draw(&mut pass, &self.wire_pipeline, &self.wire_bind_group, &m.edges, m.edge_index_count);
             }
             if let (Some(c), true) = (&self.cloud, self.show_cloud) {
