@@ -20,7 +20,6 @@ scripts/results_clouds.py (500 points) or tests/data/eval (3k, 10k).
 """
 import argparse
 import collections
-import glob
 import json
 import os
 import subprocess
@@ -32,6 +31,9 @@ import open3d as o3d
 # The GLB's materials draw a warning per mesh on stdout, where the table goes.
 o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "tests/peers"))
+from spsr import eval_clouds  # noqa: E402  (the peers' walk over DATA/NAME-SIZE.ply)
+
 NKRR = os.path.join(ROOT, "target/release/nkrr")
 
 
@@ -67,30 +69,24 @@ def main():
     ap.add_argument("--per-shape", action="store_true")
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
-    shapes = sorted(os.path.basename(p)[:-4] for p in glob.glob(os.path.join(a.data, "*.obj")))
     rows = []
-    for size in a.sizes.split(","):
-        for name in shapes:
-            cloud = os.path.join(a.data, f"{name}-{size}.ply")
-            if not os.path.exists(cloud):
-                print(f"skip {cloud}: missing", file=sys.stderr)
-                continue
-            gt = os.path.join(a.data, f"{name}.obj")
-            for method in a.methods.split(","):
-                glb = os.path.join(a.out, f"{name}-{size}-{method}.glb")
-                if not os.path.exists(glb):
-                    subprocess.run([NKRR, "reconstruct", cloud, "-o", glb, "--method", method],
-                                   check=True, capture_output=True)
-                obj = os.path.join(a.out, f"{name}-{size}-{method}-poisson.obj")
-                if not os.path.exists(obj):
-                    pcd = oriented_normals(cloud, glb, a.k)
-                    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pcd, depth=a.depth)
-                    o3d.io.write_triangle_mesh(obj, mesh, write_vertex_normals=False,
-                                               write_vertex_colors=False, write_triangle_uvs=False)
-                for variant, path in ((method, glb), (f"{method}+poisson", obj)):
-                    row = {"shape": name, "size": size, "method": variant, **metrics(gt, path)}
-                    rows.append(row)
-                    print(json.dumps(row), file=sys.stderr, flush=True)
+    for size, name, cloud in eval_clouds(a.data, a.sizes):
+        gt = os.path.join(a.data, f"{name}.obj")
+        for method in a.methods.split(","):
+            glb = os.path.join(a.out, f"{name}-{size}-{method}.glb")
+            if not os.path.exists(glb):
+                subprocess.run([NKRR, "reconstruct", cloud, "-o", glb, "--method", method],
+                               check=True, capture_output=True)
+            obj = os.path.join(a.out, f"{name}-{size}-{method}-poisson.obj")
+            if not os.path.exists(obj):
+                pcd = oriented_normals(cloud, glb, a.k)
+                mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pcd, depth=a.depth)
+                o3d.io.write_triangle_mesh(obj, mesh, write_vertex_normals=False,
+                                           write_vertex_colors=False, write_triangle_uvs=False)
+            for variant, path in ((method, glb), (f"{method}+poisson", obj)):
+                row = {"shape": name, "size": size, "method": variant, **metrics(gt, path)}
+                rows.append(row)
+                print(json.dumps(row), file=sys.stderr, flush=True)
     with open(os.path.join(a.out, "hybrid.jsonl"), "w") as f:
         f.writelines(json.dumps(r) + "\n" for r in rows)
     groups = collections.defaultdict(list)

@@ -84,6 +84,21 @@ def run_metrics(cmd, gt, recon):
     return m
 
 
+def eval_clouds(data, sizes, shapes=""):
+    """(size, name, path) of each cloud DATA/NAME-SIZE.ply for the comma-separated SIZES and SHAPES
+    (every DATA/NAME.obj when SHAPES is empty), size by size; a missing cloud is said and skipped."""
+    names = [s for s in shapes.split(",") if s]
+    if not names:
+        names = sorted(os.path.basename(p)[:-4] for p in glob.glob(os.path.join(data, "*.obj")))
+    for size in sizes.split(","):
+        for name in names:
+            cloud = os.path.join(data, f"{name}-{size}.ply")
+            if not os.path.exists(cloud):
+                print(f"skip {cloud}: missing", file=sys.stderr)
+                continue
+            yield size, name, cloud
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, help="folder with NAME.obj and NAME-SIZE.ply")
@@ -103,51 +118,43 @@ def main():
     a = ap.parse_args()
 
     os.makedirs(a.out, exist_ok=True)
-    shapes = [s for s in a.shapes.split(",") if s]
-    if not shapes:
-        shapes = sorted(os.path.basename(p)[:-4] for p in glob.glob(os.path.join(a.data, "*.obj")))
     log = open(os.path.join(a.out, "spsr.jsonl"), "w")
-    for size in a.sizes.split(","):
-        for name in shapes:
-            cloud = os.path.join(a.data, f"{name}-{size}.ply")
-            if not os.path.exists(cloud):
-                print(f"skip {cloud}: missing", file=sys.stderr)
-                continue
-            t_pca = t_orient = t_poisson = float("inf")
-            runs = []
-            for _ in range(max(a.repeat, 1)):
-                pcd = o3d.io.read_point_cloud(cloud)
-                times = normals(pcd, a.k)
-                mesh, t = poisson(pcd, a.depth, a.trim)
-                t_pca, t_orient = min(t_pca, times[0]), min(t_orient, times[1])
-                t_poisson = min(t_poisson, t)
-                runs.append(round(times[0] + times[1] + t, 3))
-            recon = os.path.join(a.out, f"{name}-{size}.obj")
-            o3d.io.write_triangle_mesh(recon, mesh, write_vertex_normals=False,
-                                       write_vertex_colors=False, write_triangle_uvs=False)
-            row = {
-                "method": "spsr", "shape": name, "size": size, "points": len(pcd.points),
-                "depth": a.depth, "trim": a.trim, "k": a.k, "cores": os.cpu_count(),
-                "normals_s": round(t_pca + t_orient, 3), "pca_s": round(t_pca, 3),
-                "orient_s": round(t_orient, 3), "poisson_s": round(t_poisson, 3),
-                "runs_s": runs,
-                "vertices": len(mesh.vertices), "faces": len(mesh.triangles),
-                "recon": recon,
-            }
-            if not a.plain:
-                row.update({
-                    "components": int(len(np.asarray(mesh.cluster_connected_triangles()[1]))),
-                    # edge-manifold with no boundary edge = closed 2-manifold surface;
-                    # Open3D's is_watertight also asks vertex-manifold and no self-intersection.
-                    "closed_manifold": bool(mesh.is_edge_manifold(allow_boundary_edges=False)),
-                    "o3d_watertight": bool(mesh.is_watertight()),
-                })
-            if a.metrics_cmd:
-                row.update(run_metrics(a.metrics_cmd, os.path.join(a.data, f"{name}.obj"), recon))
-            line = json.dumps(row)
-            print(line, flush=True)
-            log.write(line + "\n")
-            log.flush()
+    for size, name, cloud in eval_clouds(a.data, a.sizes, a.shapes):
+        t_pca = t_orient = t_poisson = float("inf")
+        runs = []
+        for _ in range(max(a.repeat, 1)):
+            pcd = o3d.io.read_point_cloud(cloud)
+            times = normals(pcd, a.k)
+            mesh, t = poisson(pcd, a.depth, a.trim)
+            t_pca, t_orient = min(t_pca, times[0]), min(t_orient, times[1])
+            t_poisson = min(t_poisson, t)
+            runs.append(round(times[0] + times[1] + t, 3))
+        recon = os.path.join(a.out, f"{name}-{size}.obj")
+        o3d.io.write_triangle_mesh(recon, mesh, write_vertex_normals=False,
+                                   write_vertex_colors=False, write_triangle_uvs=False)
+        row = {
+            "method": "spsr", "shape": name, "size": size, "points": len(pcd.points),
+            "depth": a.depth, "trim": a.trim, "k": a.k, "cores": os.cpu_count(),
+            "normals_s": round(t_pca + t_orient, 3), "pca_s": round(t_pca, 3),
+            "orient_s": round(t_orient, 3), "poisson_s": round(t_poisson, 3),
+            "runs_s": runs,
+            "vertices": len(mesh.vertices), "faces": len(mesh.triangles),
+            "recon": recon,
+        }
+        if not a.plain:
+            row.update({
+                "components": int(len(np.asarray(mesh.cluster_connected_triangles()[1]))),
+                # edge-manifold with no boundary edge = closed 2-manifold surface;
+                # Open3D's is_watertight also asks vertex-manifold and no self-intersection.
+                "closed_manifold": bool(mesh.is_edge_manifold(allow_boundary_edges=False)),
+                "o3d_watertight": bool(mesh.is_watertight()),
+            })
+        if a.metrics_cmd:
+            row.update(run_metrics(a.metrics_cmd, os.path.join(a.data, f"{name}.obj"), recon))
+        line = json.dumps(row)
+        print(line, flush=True)
+        log.write(line + "\n")
+        log.flush()
 
 
 if __name__ == "__main__":
