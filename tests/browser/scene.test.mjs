@@ -116,6 +116,7 @@ test('a big scan reconstructs in the page (measurement)', { skip: !BIG && 'set N
   };
   let peak = 0;
   const sampler = setInterval(() => { peak = Math.max(peak, rss()); }, 2000);
+  let stageLog;
   const b = await browser();
   try {
     const page = await b.newPage({ viewport: { width: 1200, height: 760 } });
@@ -133,6 +134,15 @@ test('a big scan reconstructs in the page (measurement)', { skip: !BIG && 'set N
     const pieces = [];
     const running = runToEnd(page, 3 * 3600_000 - 600_000);
     let shot = false;
+    // The stage line every minute (tile n of N, time left), so a run stopped early says how far
+    // it got: artifacts/scene-big-progress.jsonl.
+    const progressFile = path.join(ARTIFACTS, 'scene-big-progress.jsonl');
+    fs.mkdirSync(ARTIFACTS, { recursive: true });
+    fs.writeFileSync(progressFile, '');
+    stageLog = setInterval(async () => {
+      const stage = await page.textContent('#stage').catch(() => undefined);
+      fs.appendFileSync(progressFile, JSON.stringify({ s: Math.round((Date.now() - t0) / 1000), stage, rss_mib: Math.round(rss() / 2 ** 20) }) + '\n');
+    }, 60_000);
     const watch = setInterval(async () => {
       const p = await page.evaluate(() => document.body.dataset.preview).catch(() => undefined);
       if (p && pieces.at(-1) !== p) pieces.push(p);
@@ -155,6 +165,7 @@ test('a big scan reconstructs in the page (measurement)', { skip: !BIG && 'set N
     assert.equal(outcome, 'done', record.message);
   } finally {
     clearInterval(sampler);
+    clearInterval(stageLog);
     await b.close();
   }
 });
