@@ -388,12 +388,6 @@ impl Viewer {
         Ok(())
     }
 
-    /// Triangles of the mesh shown (all pieces).
-    #[wasm_bindgen(getter)]
-    pub fn mesh_triangles(&self) -> f64 {
-        self.mesh.iter().map(|m| m.index_count as f64 / 3.0).sum()
-    }
-
     /// Removes the mesh.
     pub fn clear_mesh(&mut self) {
         self.mesh.clear();
