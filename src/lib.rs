@@ -20,6 +20,8 @@ pub mod orient;
 pub mod outliers;
 pub mod pipeline;
 pub mod plan;
+pub mod poisson;
+pub mod reconstruction;
 pub mod rng;
 pub mod sample;
 pub mod scene;

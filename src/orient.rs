@@ -32,7 +32,8 @@ pub struct Neighbourhoods {
 }
 
 impl Neighbourhoods {
-    fn of(&self, i: usize) -> &[u32] {
+    /// Point `i`'s neighbours (itself first), nearest first.
+    pub fn of(&self, i: usize) -> &[u32] {
         &self.near[i * self.k..(i + 1) * self.k]
     }
 }

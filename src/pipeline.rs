@@ -7,14 +7,14 @@ use std::cell::RefCell;
 use std::fmt;
 
 use crate::cloud::{subsample, CloudError, Normalization, PointCloud};
-use crate::field::{self, Field, FitError, TuningSummary};
+use crate::field::{self, Field, FitError};
 use crate::gpu::{now, Gpu, GpuError};
 use crate::krr::KrrError;
-use crate::mesh::fit::FitReport;
-use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, ExtractStats, FieldError, Mesh, TrimReport};
+use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, FieldError};
 use crate::net::{GpuNet, NetError, Weights};
 use crate::plan::{DeviceFacts, MemoryPlan};
 use crate::settings::{Method, Settings};
+pub use crate::reconstruction::{Reconstruction, SceneReport};
 
 
 /// A stage of the pipeline, as reported to the progress callback.
@@ -28,6 +28,9 @@ pub enum Stage {
     /// Field evaluations made so far while meshing, and about how many it will take
     /// ([`crate::mesh::refine::MeshingSize::expected`]: a typical count, which a run may pass).
     Meshing { evaluated: usize, expected: usize },
+    /// The screened Poisson surface ([`crate::poisson`]): the field's mesh orients the points'
+    /// normals, then the solve and its marching cubes.
+    Surface,
     /// A scene's tiles ([`crate::scene`]): `done` of `of` reconstructed.
     Tile { done: usize, of: usize },
     /// A scene's triangles that are final before the finish stage (the blend around them is
@@ -88,59 +91,6 @@ impl From<FitError> for PipelineError {
             FitError::Krr(e) => PipelineError::Krr(e),
             FitError::Cancelled => PipelineError::Cancelled,
         }
-    }
-}
-
-/// The result: the mesh, what happened, and how long each stage took.
-#[derive(Clone, Debug)]
-pub struct Reconstruction {
-    /// In the cloud's coordinates: user coordinates are `origin + position`.
-    pub mesh: Mesh,
-    /// The cloud's [`PointCloud::origin`]: zero unless the reader moved a far-off cloud near 0.
-    pub origin: [f64; 3],
-    /// What the last fit to the points did, when [`Settings::fit`] asked for it.
-    pub fit: Option<FitReport>,
-    /// What trimming removed, when [`Settings::trim`] asked for it (its spacing and threshold
-    /// are in the network's unit cube: times the cloud's longest side for the cloud's units).
-    pub trim: Option<TrimReport>,
-    /// What the simplification did, when [`Settings::triangles`] or [`Settings::max_error`] asked for it.
-    pub simplify: Option<crate::mesh::simplify::SimplifyReport>,
-    pub notices: Vec<String>,
-    /// What the user must not miss (a filter that took a large share of the points).
-    pub warnings: Vec<String>,
-    pub extract: ExtractStats,
-    /// What the test-time tuning did (nkrr only).
-    pub tuning: Option<TuningSummary>,
-    /// (stage, seconds).
-    pub timings: Vec<(&'static str, f64)>,
-    /// (stage, bytes): the most buffer memory each stage held on the device beyond what the
-    /// engine held before the reconstruction, named as the plan names its stages; empty where
-    /// the device does not count its memory (see [`crate::gpu::ledger`]).
-    pub gpu_peaks: Vec<(&'static str, u64)>,
-    /// A scene's tiles and its blend's size ([`crate::scene`]); None for one object.
-    pub scene: Option<SceneReport>,
-}
-
-/// What a scene's sweep did ([`crate::scene`]), for the report and the tests.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct SceneReport {
-    pub tiles: usize,
-    /// Band nodes blended, in all.
-    pub nodes: usize,
-    /// The most band nodes held at once: the sweep's front.
-    pub peak_nodes: usize,
-}
-
-impl Reconstruction {
-    /// The origin as a glTF root translation ([`crate::io::gltf::GlbOptions::translation`]),
-    /// or None when it is zero.
-    pub fn translation(&self) -> Option<[f64; 3]> {
-        (self.origin != [0.0; 3]).then_some(self.origin)
-    }
-
-    /// The mesh's vertex positions in user coordinates, in f64.
-    pub fn positions_f64(&self) -> Vec<[f64; 3]> {
-        self.mesh.positions.iter().map(|p| [0, 1, 2].map(|a| p[a] as f64 + self.origin[a])).collect()
     }
 }
 
@@ -239,8 +189,10 @@ impl Engine {
             Field::Network
         };
 
-        let t = now();
         let opts = ExtractOptions { resolution: settings.resolution, remove_small_components: settings.remove_small_components, ..Default::default() };
+        // The field's own mesh: the result, or (Poisson) what orients the normals, coarser.
+        let field_opts = ExtractOptions { resolution: if plan.poisson { crate::poisson::orient_resolution(opts.resolution) } else { opts.resolution }, ..opts.clone() };
+        let t = now();
         let evaluated = RefCell::new(0usize);
         let cancelled = RefCell::new(false);
         let progress = RefCell::new(progress);
@@ -249,7 +201,7 @@ impl Engine {
         // A refinement batch can hold a third of all evaluations: evaluated in chunks, with the
         // evaluations done so far told before each, the bar moves with the work instead of
         // jumping ahead of it.
-        let expected = crate::mesh::refine::MeshingSize::at(settings.resolution).expected as usize;
+        let expected = crate::mesh::refine::MeshingSize::at(field_opts.resolution).expected as usize;
         let eval = |pts: Vec<[f32; 3]>| {
             let (evaluated, cancelled, progress) = (&evaluated, &cancelled, &progress);
             async move {
@@ -265,16 +217,33 @@ impl Engine {
                 Ok(values)
             }
         };
-        let extraction = extract_gpu_async(&self.gpu, eval, &opts).await;
+        let extraction = extract_gpu_async(&self.gpu, eval, &field_opts).await;
         if *cancelled.borrow() {
             return Err(PipelineError::Cancelled);
         }
-        let extraction = extraction.map_err(PipelineError::Mesh)?;
+        let mut extraction = extraction.map_err(PipelineError::Mesh)?;
         timings.push(("mesh", now() - t));
         peaks.end("meshing");
         if extraction.mesh.indices.is_empty() {
             let r = &extraction.stats.refine;
             return Err(PipelineError::NoSurface { evaluations: r.evaluations, field_max: r.field_max, method: settings.method });
+        }
+        if plan.poisson {
+            if !(progress.borrow_mut())(&Stage::Surface) {
+                return Err(PipelineError::Cancelled);
+            }
+            let t = now();
+            let (chi, flipped) = crate::poisson::from_mesh(&extraction.mesh, &points, crate::poisson::grid_for(opts.domain, opts.resolution));
+            notices.push(chi.notice(flipped, points.len()));
+            // χ is a trilinear lookup, searched coarse to fine as the field is (the dense grid
+            // gave the same triangles on the tuning shapes, for twice the memory); the field's
+            // evaluation count is kept for the report.
+            let field_stats = extraction.stats.refine.clone();
+            let values = |q: Vec<[f32; 3]>| std::future::ready(Ok(q.iter().map(|&p| chi.value(p)).collect()));
+            extraction = extract_gpu_async(&self.gpu, values, &opts).await.map_err(PipelineError::Mesh)?;
+            extraction.stats.refine = field_stats;
+            timings.push(("poisson", now() - t));
+            peaks.end("poisson");
         }
 
         let mut mesh = extraction.mesh;

@@ -17,7 +17,7 @@ use crate::gpu::Footprint;
 use crate::krr::{gpu as krr_gpu, reference};
 use crate::mesh::{marching_cubes_gpu, refine::MeshingSize};
 use crate::net::{gpu as net_gpu, NetConfig};
-use crate::settings::{Method, Settings};
+use crate::settings::{Method, Settings, Surface};
 
 /// What the plan needs to know about the adapter.
 #[derive(Clone, Debug, PartialEq)]
@@ -78,11 +78,35 @@ pub struct MemoryPlan {
     pub stages: Vec<StagePlan>,
     pub binding_limit: u64,
     pub host_budget: Option<u64>,
+    /// Whether the mesh comes from a screened Poisson solve ([`crate::poisson`]), not the
+    /// field's level set: [`surface`]'s decision.
+    pub poisson: bool,
     /// What the pipeline will change to fit, one sentence each (empty when everything fits).
     pub actions: Vec<String>,
     /// What the run will do otherwise than asked, for a reason other than memory, one sentence
     /// each (m capped at the pairs the tuning sees).
     pub decisions: Vec<String>,
+}
+
+/// Points from which `--surface auto` meshes a screened Poisson solve oriented by the field:
+/// at 3k and 10k points it came closer than the field's level set on the tuning shapes, at 500
+/// it did not (docs/results.md, Lever 9).
+pub const POISSON_POINTS: usize = 2000;
+
+/// Whether a cloud of `n` points (those the network sees) is meshed through a Poisson solve, and
+/// the sentence that says what of it differs from what was asked (a mesh finer than the solve's
+/// grid). Auto's choice is not a change to what was asked: the run says it with the solve's
+/// report ([`crate::poisson::Solution::notice`]).
+pub fn surface(settings: &Settings, n: usize) -> (bool, Option<String>) {
+    let poisson = match settings.surface {
+        Surface::Field => false,
+        Surface::Poisson => true,
+        Surface::Auto => n >= POISSON_POINTS,
+    };
+    let grid = crate::poisson::grid_resolution(settings.resolution);
+    let coarser = (poisson && 2 * grid < settings.resolution)
+        .then(|| format!("solve the Poisson surface on a {grid}³ grid (not half the mesh's {}³: the most it solves) and march its trilinear interpolation at {}³", settings.resolution, settings.resolution));
+    (poisson, coarser)
 }
 
 /// The inducing points for a regression on `points` points: `m` (what the settings and the
@@ -215,6 +239,8 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         m = fit as u64;
         decisions.extend(why);
     }
+    let (poisson, why) = surface(settings, n as usize);
+    decisions.extend(why);
     let planes = Footprint { gpu: net_gpu::planes_bytes(cfg), ..Default::default() };
     let stage = |name: &'static str, f: Footprint| StagePlan {
         name,
@@ -254,6 +280,10 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     // cubes run.
     let polygonize = marching_cubes_gpu::footprint(size.active, b);
     stages.push(stage("meshing", planes.and(evaluate).and(polygonize)));
+    if poisson {
+        // The solve on the host while the evaluator is still held, then χ's marching cubes.
+        stages.push(stage("poisson", planes.and(evaluate).and(polygonize).and(Footprint::host(crate::poisson::host_bytes(settings.resolution)))));
+    }
     if settings.fit || settings.trim.is_some() || (colours && settings.colors) {
         let mut host = 12 * size.triangles + 12 * size.active;
         // The fit and the trim each index the points (and their neighbour lists).
@@ -283,6 +313,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
         stages,
         binding_limit: b,
         host_budget: device.host_budget,
+        poisson,
         actions,
         decisions,
     }
@@ -326,9 +357,33 @@ mod tests {
     }
 
     #[test]
+    fn the_surface_is_decided_once_and_said() {
+        let plan = |points: usize, s: &Settings| memory_plan(points, false, s, &cfg(), &DeviceFacts::webgpu_default());
+        let auto = Settings::default();
+        // Auto: Poisson from POISSON_POINTS up (the run's notice says so, not the plan: it is
+        // what was asked), the field's level set below.
+        let p = plan(POISSON_POINTS, &auto);
+        assert!(p.poisson && p.decisions.is_empty(), "{:?}", p.decisions);
+        assert!(p.stages.iter().any(|s| s.name == "poisson" && s.host_bytes >= crate::poisson::host_bytes(auto.resolution)));
+        let p = plan(POISSON_POINTS - 1, &auto);
+        assert!(!p.poisson && p.decisions.is_empty() && !p.stages.iter().any(|s| s.name == "poisson"), "{:?}", p.decisions);
+        // Asked for: as asked, whatever the size; a finer mesh than the solve's grid is said.
+        assert!(!plan(50_000, &Settings { surface: Surface::Field, ..auto.clone() }).poisson);
+        let p = plan(500, &Settings { surface: Surface::Poisson, ..auto.clone() });
+        assert!(p.poisson && p.decisions.is_empty(), "{:?}", p.decisions);
+        let p = plan(500, &Settings { surface: Surface::Poisson, resolution: 256, ..auto.clone() });
+        assert!(p.decisions.is_empty(), "{:?}", p.decisions);
+        let p = plan(500, &Settings { surface: Surface::Poisson, resolution: 512, ..auto.clone() });
+        assert!(p.decisions.iter().any(|d| d.contains("128³ grid") && d.contains("at 512³")), "{:?}", p.decisions);
+        // The help that users read names the same threshold.
+        let help = crate::settings::by_key("surface").unwrap().help;
+        assert!(help.contains(&format!("from {POISSON_POINTS} points")), "{help}");
+    }
+
+    #[test]
     fn m_beyond_the_tuning_pairs_is_capped_and_said() {
         // `--m 5000 --tune-pairs 1000`: the tuning sees 1000 pairs, from which Z is drawn.
-        let s = Settings { m: 5000, tune_pairs: Some(1000), ..Settings::default() };
+        let s = Settings { m: 5000, tune_pairs: Some(1000), surface: Surface::Field, ..Settings::default() };
         let p = memory_plan(3000, false, &s, &cfg(), &DeviceFacts::webgpu_default());
         assert_eq!(p.m, 1000);
         assert_eq!(p.decisions.len(), 1, "{:?}", p.decisions);

@@ -338,6 +338,9 @@ pub async fn reconstruct(
     if settings.method == Method::Nkrr {
         notices.push("the tiles use the network's field: the kernel regression per tile is not built yet (--method network says so)".into());
     }
+    if settings.surface == crate::settings::Surface::Poisson {
+        notices.push("--surface poisson is for one object: a scene's mesh is the level set of its tiles' blended field".into());
+    }
     let t_all = now();
     let o = OVERLAP * tiles.size;
     let mut members = tiles.members(&cloud.positions);

@@ -68,6 +68,17 @@ pub enum Tiles {
     Off,
 }
 
+/// How the mesh is made from the field ([`crate::poisson`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Surface {
+    /// Poisson from [`crate::plan::POISSON_POINTS`] points up, the field's level set below.
+    Auto,
+    /// The field's zero level set.
+    Field,
+    /// A screened Poisson solve through the points, with normals the field orients.
+    Poisson,
+}
+
 /// Which of the tuning's iterates is kept.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SelectBy {
@@ -113,6 +124,7 @@ pub struct Settings {
     pub colors: bool,
     pub units: Option<Units>,
     pub tiles: Tiles,
+    pub surface: Surface,
     pub detail: Option<f32>,
 }
 
@@ -175,6 +187,7 @@ impl Default for Settings {
             colors: false,
             units: None,
             tiles: Tiles::Auto,
+            surface: Surface::Auto,
             detail: None,
         };
         for def in TABLE {
@@ -413,6 +426,27 @@ pub static TABLE: &[Setting] = &[
         presets: &[(64.0, "64³"), (96.0, "96³"), (128.0, "128³"), (192.0, "192³"), (256.0, "256³")],
         get: |s| Value::Num(s.resolution as f64),
         set: |s, v| s.resolution = num(v) as u32,
+        ..BASE
+    },
+    Setting {
+        key: "surface",
+        flag: "--surface",
+        label: "Surface",
+        help: "the mesh from the field's level set, or from a screened Poisson solve through the points with normals the field orients (closer on clean scans; auto: Poisson from 2000 points up)",
+        kind: Kind::Choice(&[("auto", "auto"), ("field", "the field's level set"), ("poisson", "screened Poisson, oriented by the field")]),
+        default: Value::Choice("auto"),
+        get: |s| Value::Choice(match s.surface {
+            Surface::Auto => "auto",
+            Surface::Field => "field",
+            Surface::Poisson => "poisson",
+        }),
+        set: |s, v| {
+            s.surface = match choice(v) {
+                "field" => Surface::Field,
+                "poisson" => Surface::Poisson,
+                _ => Surface::Auto,
+            }
+        },
         ..BASE
     },
     Setting {

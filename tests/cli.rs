@@ -301,7 +301,8 @@ fn weights_flag_uses_the_given_prior_and_rejects_bad_files() {
     let prior_bytes = std::fs::read(&prior).unwrap();
     let run = |name: &str, weights: Option<&str>| -> Vec<u8> {
         let out = dir.join(name).to_string_lossy().into_owned();
-        let mut args = vec!["reconstruct", &cloud, "-o", &out, "--method", "network", "--resolution", "32"];
+        // The field's own mesh: a Poisson surface takes only its normals' signs from the prior.
+        let mut args = vec!["reconstruct", &cloud, "-o", &out, "--method", "network", "--resolution", "32", "--surface", "field"];
         if let Some(w) = weights {
             args.extend(["--weights", w]);
         }

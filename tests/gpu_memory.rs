@@ -7,7 +7,7 @@ mod common;
 
 use nkrr::gpu::Gpu;
 use nkrr::pipeline::{Engine, Reconstruction};
-use nkrr::settings::{KrrBackend, Method, Settings};
+use nkrr::settings::{KrrBackend, Method, Settings, Surface};
 use nkrr::PointCloud;
 
 fn cloud() -> PointCloud {
@@ -28,7 +28,9 @@ fn resources_are_made_once_and_each_stage_stays_within_its_plan() {
     assert!(gpu.ledger.counted(), "the test build counts the device's buffer memory (wgpu's counters feature)");
     let engine = pollster::block_on(Engine::new(gpu)).unwrap();
     let cloud = cloud();
-    let base = Settings { steps: 3, krr_backend: KrrBackend::Gpu, ..Settings::default() };
+    // The field's own mesh, whose evaluations grow with the resolution (a Poisson surface meshes
+    // the field at one coarse resolution: checked below).
+    let base = Settings { steps: 3, krr_backend: KrrBackend::Gpu, surface: Surface::Field, ..Settings::default() };
     for method in [Method::Network, Method::Nkrr] {
         let coarse = Settings { method, resolution: 64, ..base.clone() };
         let fine = Settings { resolution: 160, ..coarse.clone() };
@@ -56,6 +58,21 @@ fn resources_are_made_once_and_each_stage_stays_within_its_plan() {
                 assert!(*bytes <= planned + planned / 100, "{method:?} {stage}: {bytes} bytes held, {planned} planned");
                 assert!(4 * *bytes >= planned, "{method:?} {stage}: {bytes} bytes held, {planned} planned");
             }
+        }
+    }
+    // The Poisson surface (auto on this 3k cloud): the field meshed coarsely, then the solve and
+    // χ's marching cubes, each stage within its plan.
+    for method in [Method::Network, Method::Nkrr] {
+        let s = Settings { method, resolution: 96, surface: Surface::Auto, ..base.clone() };
+        let (rec, _) = run(&engine, &cloud, &s);
+        let plan = engine.memory_plan(cloud.len(), false, &s);
+        assert!(plan.poisson);
+        let names: Vec<_> = rec.gpu_peaks.iter().map(|(n, _)| *n).collect();
+        assert_eq!(names.last(), Some(&"poisson"), "{method:?}");
+        for (stage, bytes) in &rec.gpu_peaks {
+            let planned = plan.stages.iter().find(|p| p.name == *stage).unwrap().gpu_bytes;
+            eprintln!("{method:?} Poisson: {stage:<8} peak {bytes:>10} B, plan {planned:>10} B ({:.2})", *bytes as f64 / planned as f64);
+            assert!(*bytes <= planned + planned / 100 && 4 * *bytes >= planned, "{method:?} {stage}: {bytes} bytes held, {planned} planned");
         }
     }
 }

@@ -362,7 +362,13 @@ pub const VARIANTS: &[(&str, Variant)] = &[
     // The last fit of the mesh to the points left out: the field's level set as it is.
     ("network-no-fit", |s| Settings { fit: false, ..network(s) }),
     ("network-keep-outliers", |s| Settings { outliers: None, min_support: None, ..network(s) }),
+    // The mesh from the field's level set, or from a Poisson solve it orients, whatever the
+    // cloud's size (`--surface auto` chooses by it: crate::plan::surface).
+    ("network-field", |s| Settings { surface: crate::settings::Surface::Field, ..network(s) }),
+    ("network-poisson", |s| Settings { surface: crate::settings::Surface::Poisson, ..network(s) }),
     ("nkrr", nkrr),
+    ("nkrr-field", |s| Settings { surface: crate::settings::Surface::Field, ..nkrr(s) }),
+    ("nkrr-poisson", |s| Settings { surface: crate::settings::Surface::Poisson, ..nkrr(s) }),
     ("nkrr-no-fit", |s| Settings { fit: false, ..nkrr(s) }),
     ("nkrr-fit-noise", |s| Settings { fit_noise: true, ..nkrr(s) }),
     // No test-time tuning; length-scales fixed; inducing points fixed.

@@ -172,6 +172,12 @@ pub fn noise_level(points: &[[f32; 3]]) -> f64 {
 /// the cloud is no noisier than those.
 const CLEAN_NOISE: [(f64, f64); 3] = [(500.0, 0.013), (3000.0, 0.005), (10_000.0, 0.004)];
 
+/// How many times noisier `points` are than the eval clouds of as many points ([`noise_level`]
+/// against [`CLEAN_NOISE`]): about 1 on a clean scan, 4 at σ 0.02.
+pub fn noise_ratio(points: &[[f32; 3]]) -> f64 {
+    noise_level(points) / clean_noise(points.len())
+}
+
 /// [`CLEAN_NOISE`] at `n` points, linear in log n between its entries and constant beyond.
 fn clean_noise(n: usize) -> f64 {
     let x = (n.max(1) as f64).ln();

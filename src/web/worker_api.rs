@@ -120,6 +120,7 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
             }
             Stage::Features => ("features", vec![]),
             Stage::Pairs => ("pairs", vec![]),
+            Stage::Surface => ("surface", vec![]),
             Stage::Tuning { step, of, loss } => ("tuning", vec![("step", *step as f64), ("of", *of as f64), ("loss", *loss)]),
             Stage::Meshing { evaluated, expected } => {
                 ("meshing", vec![("evaluated", *evaluated as f64), ("expected", *expected as f64)])
