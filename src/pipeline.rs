@@ -217,7 +217,8 @@ impl Engine {
                 Ok(values)
             }
         };
-        let extraction = extract_gpu_async(&self.gpu, eval, &field_opts).await;
+        let mut eval = eval;
+        let extraction = extract_gpu_async(&self.gpu, &mut eval, &field_opts).await;
         if *cancelled.borrow() {
             return Err(PipelineError::Cancelled);
         }
@@ -234,14 +235,26 @@ impl Engine {
             }
             let t = now();
             let (chi, flipped) = crate::poisson::from_mesh(&extraction.mesh, &points, crate::poisson::grid_for(opts.domain, opts.resolution));
-            notices.push(chi.notice(flipped, points.len()));
             // χ is a trilinear lookup, searched coarse to fine as the field is (the dense grid
             // gave the same triangles on the tuning shapes, for twice the memory); the field's
             // evaluation count is kept for the report.
             let field_stats = extraction.stats.refine.clone();
             let values = |q: Vec<[f32; 3]>| std::future::ready(Ok(q.iter().map(|&p| chi.value(p)).collect()));
-            extraction = extract_gpu_async(&self.gpu, values, &opts).await.map_err(PipelineError::Mesh)?;
-            extraction.stats.refine = field_stats;
+            let surface = extract_gpu_async(&self.gpu, values, &opts).await.map_err(PipelineError::Mesh)?;
+            let far = crate::poisson::far_share(&surface.mesh, &points);
+            if settings.surface == crate::settings::Surface::Auto && far > crate::poisson::MAX_FAR_SHARE {
+                // A one-sided scan: the field's own mesh at the resolution asked, not the balloon.
+                notices.push(format!("the Poisson surface put {:.0} % of its area far from every point (a scan of one side?): the mesh is the field's level set instead (--surface poisson keeps the Poisson surface)", 100.0 * far));
+                let field = extract_gpu_async(&self.gpu, &mut eval, &opts).await;
+                if *cancelled.borrow() {
+                    return Err(PipelineError::Cancelled);
+                }
+                extraction = field.map_err(PipelineError::Mesh)?;
+            } else {
+                notices.push(chi.notice(flipped, points.len()));
+                extraction = surface;
+                extraction.stats.refine = field_stats;
+            }
             timings.push(("poisson", now() - t));
             peaks.end("poisson");
         }

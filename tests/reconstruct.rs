@@ -474,6 +474,27 @@ fn the_poisson_surface_comes_closer_than_the_fields_level_set() {
     assert!(p.nc >= f.nc - 0.005, "NC Poisson {} vs field {}", p.nc, f.nc);
 }
 
+/// A scan of one side (the half of spot facing +x): the Poisson surface would balloon over the
+/// side never seen, so `--surface auto` keeps the field's level set and says why; `--surface
+/// poisson` keeps the Poisson surface as asked. `poisson::far_share` measures the balloon.
+#[test]
+fn a_one_sided_scan_keeps_the_fields_level_set() {
+    let cloud = spot();
+    let (lo, hi) = bounds(&cloud.positions);
+    let cx = 0.5 * (lo[0] + hi[0]);
+    let half = PointCloud { positions: cloud.positions.iter().copied().filter(|p| p[0] > cx).collect(), ..Default::default() };
+    let auto = reconstruct(&half, &settings());
+    let field = reconstruct(&half, &Settings { surface: Surface::Field, ..settings() });
+    let poisson = reconstruct(&half, &Settings { surface: Surface::Poisson, ..settings() });
+    assert!(auto.notices.iter().any(|n| n.contains("far from every point") && n.contains("--surface poisson")), "{:?}", auto.notices);
+    assert_eq!(auto.mesh.indices, field.mesh.indices, "the field's level set, as --surface field makes it");
+    assert!(poisson.notices.iter().any(|n| n.contains("screened Poisson surface")), "{:?}", poisson.notices);
+    // In the same (unit-cube-free, user) coordinates as the points: the balloon is measured.
+    let far = nkrr::poisson::far_share(&poisson.mesh, &half.positions);
+    assert!(far > nkrr::poisson::MAX_FAR_SHARE, "{far}");
+    assert!(nkrr::poisson::far_share(&field.mesh, &half.positions) < far);
+}
+
 /// Meshing progress moves with the work done (issue 17): the evaluations reported never run
 /// ahead of the evaluations made, grow in steps of at most one chunk (32768), and end at the
 /// extraction's own count.
