@@ -5,8 +5,9 @@
 //! Why here: on clean scans of 3k points and more, the field's own level set stops short of the
 //! noise floor (issue 26), while a Poisson solve, which classical tools reach only with normals
 //! they cannot orient well, gets there once the field orients the normals (docs/results.md,
-//! Lever 9: `scripts/grid_poisson.py` is the prototype this follows). The field decides inside
-//! and outside; the solve decides where exactly the surface runs.
+//! Lever 9: `scripts/grid_poisson.py` is the prototype this follows; docs/poisson.md has what
+//! was chosen and measured). The field decides inside and outside; the solve decides where
+//! exactly the surface runs.
 //!
 //! Over a grid of `res³` cells (spacing h) the node values χ minimise
 //!
@@ -449,7 +450,8 @@ pub fn solve(grid: Grid, points: &[[f32; 3]], normals: &[[f32; 3]], areas: &[f64
     Solution { grid, chi: x, iterations, residual }
 }
 
-/// Neighbours of each point for its PCA normal and for the vote on its side (the prototype's 30).
+/// Neighbours of each point for its PCA normal (the prototype's 30; the nearest
+/// [`AREA_NEIGHBOURS`] of them also give its share of the surface).
 pub const NEIGHBOURS: usize = 30;
 
 /// The finest grid solved for: 128³ cells (2.1 M nodes, about 160 MB while solving).
