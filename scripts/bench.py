@@ -36,7 +36,7 @@ def cloud_path(shape, size):
             raise SystemExit("--sizes 100k: only spot has a 100k cloud (scripts/results_clouds.py)")
         return "target/results/data/scale/scale-100000.ply"
     return f"target/results/data/{shape}-{size}.ply"
-STAGES = ["features", "pairs", "tuning", "mesh", "fit"]
+STAGES = ["features", "pairs", "tuning", "mesh", "poisson", "fit"]
 
 
 def log(msg):
