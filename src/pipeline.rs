@@ -13,9 +13,8 @@ use crate::krr::KrrError;
 use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, FieldError};
 use crate::net::{GpuNet, NetError, Weights};
 use crate::plan::{DeviceFacts, MemoryPlan};
-use crate::settings::{Method, Settings};
+use crate::settings::{Method, Settings, Surface};
 pub use crate::reconstruction::{Reconstruction, SceneReport};
-
 
 /// A stage of the pipeline, as reported to the progress callback.
 #[derive(Clone, Debug, PartialEq)]
@@ -94,6 +93,13 @@ impl From<FitError> for PipelineError {
     }
 }
 
+/// One pass of [`Engine::reconstruct`]: the result, or the Poisson surface's reason to mesh the
+/// field instead and the seconds that pass took.
+enum Attempt {
+    Done(Reconstruction),
+    FieldInstead { notice: String, seconds: f64 },
+}
+
 /// The GPU-resident parts that outlive one reconstruction (weights uploaded once).
 pub struct Engine {
     pub gpu: Gpu,
@@ -119,12 +125,25 @@ impl Engine {
 
     /// Reconstructs `cloud`. `progress` is called at each stage and during meshing; returning
     /// false cancels at the next step.
-    pub async fn reconstruct(
-        &self,
-        cloud: &PointCloud,
-        settings: &Settings,
-        progress: &mut dyn FnMut(&Stage) -> bool,
-    ) -> Result<Reconstruction, PipelineError> {
+    pub async fn reconstruct(&self, cloud: &PointCloud, settings: &Settings, progress: &mut dyn FnMut(&Stage) -> bool) -> Result<Reconstruction, PipelineError> {
+        let (mut settings, mut first) = (settings.clone(), None);
+        loop {
+            match self.attempt(cloud, &settings, progress).await? {
+                Attempt::Done(mut rec) => {
+                    if let Some((notice, seconds)) = first {
+                        (rec.notices.insert(0, notice), rec.timings.insert(0, ("poisson", seconds)));
+                    }
+                    return Ok(rec);
+                }
+                // The Poisson surface ballooned (a one-sided scan): the whole run again on the
+                // field's level set, nkrr's tuning included (`Surface::Field` never comes here).
+                Attempt::FieldInstead { notice, seconds } => (first, settings.surface) = (Some((notice, seconds)), Surface::Field),
+            }
+        }
+    }
+
+    async fn attempt(&self, cloud: &PointCloud, settings: &Settings, progress: &mut dyn FnMut(&Stage) -> bool) -> Result<Attempt, PipelineError> {
+        let t_all = now();
         let mut timings = Vec::new();
         let mut notices = Vec::new();
         let mut warnings = Vec::new();
@@ -167,7 +186,9 @@ impl Engine {
         peaks.end("features");
 
         let mut tuning = None;
-        let field = if settings.method == Method::Nkrr {
+        // With the Poisson surface the field only signs the normals, which the tuning does not
+        // change (docs/poisson.md): nkrr tunes only if the surface falls back to the field.
+        let field = if settings.method == Method::Nkrr && !plan.poisson {
             if !progress(&Stage::Pairs) {
                 return Err(PipelineError::Cancelled);
             }
@@ -217,8 +238,7 @@ impl Engine {
                 Ok(values)
             }
         };
-        let mut eval = eval;
-        let extraction = extract_gpu_async(&self.gpu, &mut eval, &field_opts).await;
+        let extraction = extract_gpu_async(&self.gpu, eval, &field_opts).await;
         if *cancelled.borrow() {
             return Err(PipelineError::Cancelled);
         }
@@ -244,14 +264,13 @@ impl Engine {
             let far = crate::poisson::far_share(&surface.mesh, &points);
             if settings.surface == crate::settings::Surface::Auto && far > crate::poisson::MAX_FAR_SHARE {
                 // A one-sided scan: the field's own mesh at the resolution asked, not the balloon.
-                notices.push(format!("the Poisson surface put {:.0} % of its area far from every point (a scan of one side?): the mesh is the field's level set instead (--surface poisson keeps the Poisson surface)", 100.0 * far));
-                let field = extract_gpu_async(&self.gpu, &mut eval, &opts).await;
-                if *cancelled.borrow() {
-                    return Err(PipelineError::Cancelled);
-                }
-                extraction = field.map_err(PipelineError::Mesh)?;
+                let notice = format!("the Poisson surface put {:.0} % of its area far from every point (a scan of one side?): the mesh is the field's level set instead (--surface poisson keeps the Poisson surface)", 100.0 * far);
+                return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all });
             } else {
                 notices.push(chi.notice(flipped, points.len()));
+                if settings.method == Method::Nkrr {
+                    notices.push("the kernel regression was not tuned: the Poisson surface takes only its normals' signs from the field, the network's as good as the tuned one's (docs/poisson.md); --surface field meshes the tuned field".into());
+                }
                 extraction = surface;
                 extraction.stats.refine = field_stats;
             }
@@ -275,6 +294,6 @@ impl Engine {
         let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
         (progress.borrow_mut())(&Stage::Done);
         let crate::mesh::finish::Finished { fit, trim, simplify } = finished;
-        Ok(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None })
+        Ok(Attempt::Done(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None }))
     }
 }

@@ -235,6 +235,8 @@ test('cancel during CPU-bound nkrr tuning replaces the deaf worker; the next run
     const { page, errors } = await readyPage(b);
     await page.waitForFunction(() => document.body.dataset.worker === 'ready', null, { timeout: 90_000 });
     await page.selectOption('#method', 'nkrr');
+    // The field's level set: with the Poisson surface (auto at 3k points) nkrr skips the tuning.
+    await page.selectOption('#surface', 'field');
     // m = 800: each tuning step takes well over the 5 s grace on the CPU (about m² × 4000
     // pairs), during which the worker hears nothing. (At m = 400 a step took 4.4 s on an idle
     // machine, under the grace, and the worker was rightly kept.)
@@ -274,6 +276,8 @@ test('on a cross-origin isolated page, cancel reaches even CPU-bound tuning; the
     await page.waitForFunction(() => document.body.dataset.loaded === 'spot-3k.ply', null, { timeout: 60_000 });
     await page.waitForFunction(() => document.body.dataset.worker === 'ready', null, { timeout: 90_000 });
     await page.selectOption('#method', 'nkrr');
+    // The field's level set: with the Poisson surface (auto at 3k points) nkrr skips the tuning.
+    await page.selectOption('#surface', 'field');
     await page.fill('#m', '400');
     await page.fill('#steps', '100');
     await page.selectOption('#resolution', '64');
@@ -357,7 +361,7 @@ test('nkrr with its objective on the GPU (forced on this software adapter) runs 
       const bytes = await (await fetch('/data/spot-3k.ply')).arrayBuffer();
       const seen = new Set();
       const out = await window.nkrrReconstructor.reconstruct(bytes,
-        { method: 'nkrr', m: 40, steps: 4, krrBackend: 'gpu', resolution: 32 },
+        { method: 'nkrr', m: 40, steps: 4, krrBackend: 'gpu', resolution: 32, surface: 'field' },
         { onProgress: (p) => seen.add(p.stage) });
       return { ...out.stats, stages: [...seen] };
     });
