@@ -131,7 +131,8 @@ impl Engine {
             match self.attempt(cloud, &settings, progress).await? {
                 Attempt::Done(mut rec) => {
                     if let Some((notice, seconds)) = first {
-                        (rec.notices.insert(0, notice), rec.timings.insert(0, ("poisson", seconds)));
+                        rec.notices.insert(0, notice);
+                        rec.timings.insert(0, ("poisson attempt", seconds));
                     }
                     return Ok(rec);
                 }
@@ -262,18 +263,17 @@ impl Engine {
             let values = |q: Vec<[f32; 3]>| std::future::ready(Ok(q.iter().map(|&p| chi.value(p)).collect()));
             let surface = extract_gpu_async(&self.gpu, values, &opts).await.map_err(PipelineError::Mesh)?;
             let far = crate::poisson::far_share(&surface.mesh, &points);
-            if settings.surface == crate::settings::Surface::Auto && far > crate::poisson::MAX_FAR_SHARE {
+            if settings.surface == Surface::Auto && far > crate::poisson::MAX_FAR_SHARE {
                 // A one-sided scan: the field's own mesh at the resolution asked, not the balloon.
                 let notice = format!("the Poisson surface put {:.0} % of its area far from every point (a scan of one side?): the mesh is the field's level set instead (--surface poisson keeps the Poisson surface)", 100.0 * far);
                 return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all });
-            } else {
-                notices.push(chi.notice(flipped, points.len()));
-                if settings.method == Method::Nkrr {
-                    notices.push("the kernel regression was not tuned: the Poisson surface takes only its normals' signs from the field, the network's as good as the tuned one's (docs/poisson.md); --surface field meshes the tuned field".into());
-                }
-                extraction = surface;
-                extraction.stats.refine = field_stats;
             }
+            notices.push(chi.notice(flipped, points.len()));
+            if settings.method == Method::Nkrr {
+                notices.push("the kernel regression was not tuned: the Poisson surface takes only its normals' signs from the field, the network's as good as the tuned one's (docs/poisson.md); --surface field meshes the tuned field".into());
+            }
+            extraction = surface;
+            extraction.stats.refine = field_stats;
             timings.push(("poisson", now() - t));
             peaks.end("poisson");
         }

@@ -104,7 +104,7 @@ pub fn surface(settings: &Settings, n: usize) -> (bool, Option<String>) {
         Surface::Auto => n >= POISSON_POINTS,
     };
     let grid = crate::poisson::grid_resolution(settings.resolution);
-    let coarser = (poisson && 2 * grid < settings.resolution)
+    let coarser = (poisson && settings.resolution / 2 > crate::poisson::MAX_GRID)
         .then(|| format!("solve the Poisson surface on a {grid}³ grid (not half the mesh's {}³: the most it solves) and march its trilinear interpolation at {}³", settings.resolution, settings.resolution));
     (poisson, coarser)
 }

@@ -10,14 +10,14 @@ use crate::mesh::{ExtractStats, Mesh, TrimReport};
 pub struct Reconstruction {
     /// In the cloud's coordinates: user coordinates are `origin + position`.
     pub mesh: Mesh,
-    /// The cloud's [`PointCloud::origin`]: zero unless the reader moved a far-off cloud near 0.
+    /// The cloud's [`crate::PointCloud::origin`]: zero unless the reader moved a far-off cloud near 0.
     pub origin: [f64; 3],
-    /// What the last fit to the points did, when [`Settings::fit`] asked for it.
+    /// What the last fit to the points did, when [`crate::settings::Settings::fit`] asked for it.
     pub fit: Option<FitReport>,
-    /// What trimming removed, when [`Settings::trim`] asked for it (its spacing and threshold
+    /// What trimming removed, when [`crate::settings::Settings::trim`] asked for it (its spacing and threshold
     /// are in the network's unit cube: times the cloud's longest side for the cloud's units).
     pub trim: Option<TrimReport>,
-    /// What the simplification did, when [`Settings::triangles`] or [`Settings::max_error`] asked for it.
+    /// What the simplification did, when [`crate::settings::Settings::triangles`] or [`crate::settings::Settings::max_error`] asked for it.
     pub simplify: Option<crate::mesh::simplify::SimplifyReport>,
     pub notices: Vec<String>,
     /// What the user must not miss (a filter that took a large share of the points).

@@ -169,8 +169,8 @@ const reconstructor = new Reconstructor({ graceMs: CANCEL_GRACE_MS });
 // Shares of the overall bar per stage, by method. Meshing has no known end: its share fills as
 // field evaluations approach the typical count the event carries (MeshingSize::expected).
 const SHARES = {
-  network: { features: [0, 0.15], surface: [0.15, 0.3], meshing: [0.3, 0.98], tiles: [0, 0.98] },
-  nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], surface: [0.7, 0.8], meshing: [0.8, 0.98], tiles: [0, 0.98] },
+  network: { features: [0, 0.15], meshing: [0.15, 0.9], surface: [0.9, 0.98], tiles: [0, 0.98] },
+  nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], meshing: [0.7, 0.9], surface: [0.9, 0.98], tiles: [0, 0.98] },
 };
 
 /** ", about m:ss left" in a stage whose steps cost about the same (tiles, tuning steps), from
@@ -189,7 +189,7 @@ function stageText(p, opts) {
     case 'features': return 'Computing features (network encoder)…';
     case 'pairs': return 'Sampling and labelling training pairs…';
     case 'tuning': return `Tuning: step ${p.step} of ${p.of}, loss ${p.loss.toPrecision(4)}${left(p, p.step, p.of, ' for the tuning')}`;
-    case 'surface': return 'Orienting normals by the field, solving the Poisson surface…';
+    case 'surface': return 'Solving the Poisson surface (normals signed by the field’s mesh)…';
     case 'meshing': return `Meshing at ${opts.resolution}³: ${fmt.format(p.evaluated)} field evaluations`;
     case 'tiles': return `Scene: tile ${fmt.format(p.done)} of ${fmt.format(p.of)}${left(p, p.done, p.of, '')}`;
     case 'done': return 'Writing the GLB…';

@@ -290,7 +290,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             Stage::Features => "computing features".to_string(),
             Stage::Pairs => "sampling and labelling training pairs".to_string(),
             Stage::Tuning { step, of, loss } => format!("tuning: step {step}/{of}, loss {loss:.6}{}", left("tuning", *step, *of)),
-            Stage::Surface => "orienting normals by the field and solving the Poisson surface".to_string(),
+            Stage::Surface => "solving the Poisson surface (normals signed by the field's mesh)".to_string(),
             Stage::Meshing { evaluated, expected } => format!("meshing: {evaluated} field evaluations (of about {expected})"),
             Stage::Tile { done, of } => format!("tiles: {done} of {of}{}", left("tiles", *done, *of)),
             // Pieces of a scene's mesh are for viewers to show; the tile count says enough here.
