@@ -102,7 +102,7 @@ def ablations_phase(work, shapes, run):
         prefix = os.path.join(work, f"ablations-{shape}")
         if run:
             eval_phase(work, f"ablations-{shape}", ["--sizes", "3k", "--methods",
-                                                     ",".join(ABLATIONS), "--shapes", shape])
+                                                     ",".join(ABLATIONS), "--shapes", shape] + FIELD)
         if os.path.exists(prefix + ".wall"):
             parts.append(load_eval(prefix))
     if not parts:
@@ -138,19 +138,32 @@ LEVERS4 = [
     ("nkrr-fit-noise", "5 on noisy clouds: the fit's neighbourhood follows the noise",
      "the fit's neighbourhood widened on clouds noisier than the eval clouds, turned on (`--fit-noise`; not a default)"),
 ]
+# Issue 26: the Poisson surface through the field's normals, the default from 2,000 points. Its
+# variant is in the main run (nkrr-field: the tuned field's level set, the default before).
+LEVERS5 = [
+    ("nkrr-field", "9: the Poisson surface oriented by the field (issue 26)",
+     "the tuned field's level set (`--surface field`, the default before; at 500 points both are the field)"),
+]
+# The levers of the regression itself (its pairs, the iterate it keeps, its prior mean, its
+# kernel) act only where the field's level set is the mesh: with the Poisson surface the
+# regression is not tuned (the network's field orients the normals). They run on the field
+# surface (`--surface field`) against nkrr-field, as do the paper's ablations.
+FIELD_LEVERS = {"nkrr-paper-pairs", "nkrr-select-training", "nkrr-prior-mean", "nkrr-position",
+                "nkrr-position-prior-mean", "nkrr-no-across"}
+FIELD = ["--surface", "field"]
 HARD_KINDS = ["noise", "outliers", "falloff", "onesided"]
 
 
 def levers_phase(work):
     """Every lever's variant at 500 / 3k / 10k (WORK/levers.json) and the paper's
     method whole at 500 and 3k (WORK/paper.json, meshes kept: the before of the renders)."""
-    levers = eval_phase(work, "levers", ["--sizes", ",".join(SIZES), "--methods",
-                                         ",".join(m for m, _, _ in LEVERS)])
-    more = eval_phase(work, "levers2", ["--sizes", ",".join(SIZES), "--methods", ",".join(m for m, _, _ in LEVERS2)])
-    third = eval_phase(work, "levers3", ["--sizes", ",".join(SIZES), "--methods", ",".join(m for m, _, _ in LEVERS3)])
-    fourth = eval_phase(work, "levers4", ["--sizes", ",".join(SIZES), "--methods", ",".join(m for m, _, _ in LEVERS4)])
-    levers = {"runs": levers["runs"] + more["runs"] + third["runs"] + fourth["runs"],
-              "wall_s": sum(x["wall_s"] or 0 for x in (levers, more, third, fourth))}
+    every = LEVERS + LEVERS2 + LEVERS3 + LEVERS4
+    field = eval_phase(work, "levers-field", ["--sizes", ",".join(SIZES), "--methods",
+                                              ",".join(m for m, _, _ in every if m in FIELD_LEVERS)] + FIELD)
+    rest = eval_phase(work, "levers", ["--sizes", ",".join(SIZES), "--methods",
+                                       ",".join(m for m, _, _ in every if m not in FIELD_LEVERS)])
+    levers = {"runs": field["runs"] + rest["runs"], "wall_s": sum(x["wall_s"] or 0 for x in (field, rest))}
+    # The paper's method has the field's level set as its mesh (nkrr-paper sets it).
     paper = eval_phase(work, "paper", ["--sizes", "500,3k", "--methods", "nkrr-paper", "--keep-meshes"])
     return levers, paper
 
@@ -172,7 +185,7 @@ def prior_phase(work, other):
     return {"other": other, "eval": ev, "hard": hard, "compare": json.load(open(cmp_path))}
 
 
-HARD_METHODS = "network,nkrr,network-keep-outliers,nkrr-keep-outliers," + ",".join(m for m, _, _ in LEVERS4)
+HARD_METHODS = "network,nkrr,network-keep-outliers,nkrr-keep-outliers," + ",".join(m for m, _, _ in LEVERS4 + LEVERS5)
 
 
 def hard_phase(work):
@@ -194,7 +207,7 @@ def lever_table(base_rows, var_rows, sizes, base_label, var_label):
     """Per size: the mean CD1 x100 / F / NC of the default and of the variant on the same clouds,
     and on how many clouds the default's CD1 is lower (higher) by more than the 0.01 noise."""
     by = {(r["shape"], r["size"]): r for r in var_rows}
-    lines = [f"| points | {base_label} CD1 / F / NC | {var_label} CD1 / F / NC | default better / worse by > 0.01 CD1 |",
+    lines = [f"| points | {base_label} CD1 / F / NC | {var_label} CD1 / F / NC | {base_label} better / worse by > 0.01 CD1 |",
              "|---|---|---|---|"]
     for size in sizes:
         pairs = [(r, by[(r["shape"], size)]) for r in base_rows if r["size"] == size and (r["shape"], size) in by]
@@ -328,8 +341,9 @@ def render_phase(work, shapes, size):
 
 # ---------------------------------------------------------------- report
 
-METHOD_ORDER = ["network", "nkrr", "spsr", "ipsr"] + ABLATIONS
-LABEL = {"network": "network", "nkrr": "nkrr", "spsr": "SPSR (depth 8)", "ipsr": "iPSR (defaults)"}
+METHOD_ORDER = ["network", "nkrr", "nkrr-field", "spsr", "ipsr"] + ABLATIONS
+LABEL = {"network": "network", "nkrr": "nkrr", "nkrr-field": "nkrr, field surface", "spsr": "SPSR (depth 8)",
+         "ipsr": "iPSR (defaults)"}
 # iPSR (Hou et al., SIGGRAPH 2022) is built and run outside this repository (neither its code nor
 # a script that builds it is committed): its rows are read when WORK/ipsr/ipsr.jsonl and
 # WORK/hard/ipsr/ipsr.jsonl are there, in spsr.jsonl's form with total_s (see IPSR_HOW).
@@ -567,19 +581,19 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
       "protocol, the times not benchmarks).\n")
     w("Commands run (all by `scripts/results.sh`):\n")
     w("```")
-    w("nkrr eval target/results/data --sizes 500,3k,10k --methods network,nkrr --keep-meshes")
+    w("nkrr eval target/results/data --sizes 500,3k,10k --methods network,nkrr,nkrr-field --keep-meshes")
     w("tests/peers/spsr.py --data target/results/data --sizes 500,3k,10k --depth 8 "
       "--metrics-cmd 'target/release/nkrr metrics'")
     w(f"nkrr eval target/results/data --sizes 3k --methods {','.join(ABLATIONS)} "
-      f"--shapes {','.join(abl_shapes)}   # in groups of shapes")
+      f"--shapes {','.join(abl_shapes)} --surface field   # in groups of shapes")
     w(f"nkrr eval target/results/data --sizes 3k --methods network,nkrr --shapes "
       f"{','.join(RERUN_SHAPES)}   # the re-run")
     w("/usr/bin/time -v nkrr reconstruct scale-N.ply -o out.glb --method network|nkrr")
+    every = LEVERS + LEVERS2 + LEVERS3 + LEVERS4
     w("nkrr eval target/results/data --sizes 500,3k,10k --methods "
-      + ",".join(m for m, _, _ in LEVERS) + "   # the levers")
-    w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(m for m, _, _ in LEVERS2))
-    w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(m for m, _, _ in LEVERS3))
-    w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(m for m, _, _ in LEVERS4))
+      + ",".join(m for m, _, _ in every if m in FIELD_LEVERS) + " --surface field   # the regression's levers")
+    w("nkrr eval target/results/data --sizes 500,3k,10k --methods "
+      + ",".join(m for m, _, _ in every if m not in FIELD_LEVERS) + "   # the others")
     w("nkrr eval target/results/data --sizes 500,3k --methods nkrr-paper --keep-meshes")
     w("scripts/hard_clouds.py --spsr   # the harder clouds and screened Poisson on them")
     w("nkrr eval target/results/hard --sizes " + ",".join(HARD_KINDS)
@@ -601,7 +615,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
       "orientation + Poisson, Open3D multithreaded). Best per shape in bold.\n")
     for size in reversed(SIZES):
         w(f"### {size} points\n")
-        w(table([r for r in rows if r["size"] == size], ["network", "nkrr"] + peers, shapes))
+        w(table([r for r in rows if r["size"] == size], ["network", "nkrr", "nkrr-field"] + peers, shapes))
         w("")
     w("![metrics vs size](img/results-metrics.png)\n")
     if ipsr:
@@ -637,7 +651,10 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
               f"({', '.join(abl_shapes)}), not all six; the means below are over those shapes "
               "only, with network and nkrr from the main run on the same shapes.\n")
         arows = [r for r in runs if r["size"] == "3k" and r["shape"] in abl_shapes] + abl["runs"]
-        w(table(arows, ["network", "nkrr"] + ABLATIONS, sorted(abl_shapes)))
+        w("On the field surface (`--surface field`), where the regression's field is the mesh: with the "
+          "Poisson surface (the default from 2,000 points) the regression is not tuned, so these change nothing "
+          "there. `nkrr, field surface` is the main run's nkrr-field.\n")
+        w(table(arows, ["nkrr-field"] + ABLATIONS, sorted(abl_shapes)))
         w("\n`nkrr-no-tune`: KRR with the initial θ and Z (no Adam); `nkrr-no-theta`: only Z "
           "tuned; `nkrr-no-z`: only θ tuned; `nkrr-euclidean`: KRR on Fourier-encoded "
           "coordinates instead of the network's features; `nkrr-m1000`: 1000 inducing points.\n")
@@ -653,10 +670,15 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
           + ",".join(m for m, _, _ in LEVERS + LEVERS2 + LEVERS3 + LEVERS4) + "`). Settings were chosen on cow, fandisk and "
           "suzanne; spot, stanford-bunny and teapot were not used to choose them (per-shape rows: "
           "`target/results/levers.md`).\n")
-        for m, title, what in LEVERS + LEVERS2 + LEVERS3 + LEVERS4:
+        nkf = [r for r in runs if r["method"] == "nkrr-field"]
+        for m, title, what in LEVERS + LEVERS2 + LEVERS3 + LEVERS4 + LEVERS5:
             w(f"### Lever {title}\n")
             w(f"The variant: {what}.\n")
-            w(lever_table(nk, [r for r in lv if r["method"] == m], SIZES, "default", m))
+            if m in FIELD_LEVERS:
+                w("On the field surface, against nkrr-field (the regression is not tuned under the Poisson surface).\n")
+                w(lever_table(nkf, [r for r in lv if r["method"] == m], SIZES, "nkrr-field", m))
+            else:
+                w(lever_table(nk, [r for r in lv + runs if r["method"] == m], SIZES, "default", m))
             w("")
         w("### Lever 6: another prior\n")
         if prior:
@@ -667,7 +689,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
             w("### All of them: the paper's method\n")
             w("`nkrr-paper`: the paper's tuning (all pairs, lr 0.1, 100 steps, lowest training error), "
               "its pairs, no fit, every point and piece kept.\n")
-            w(lever_table(nk, paper["runs"], ["500", "3k"], "default", "nkrr-paper"))
+            w(lever_table(nkf, paper["runs"], ["500", "3k"], "nkrr-field", "nkrr-paper"))
             w("")
     else:
         w("Not run (phase `levers`).\n")
@@ -713,7 +735,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
         if hipsr:
             w(f"Against iPSR (as above): nkrr's CD1 is lower on {total['ipsr'][0]} and its F-score higher on "
               f"{total['ipsr'][1]} of the {n}.\n")
-        for m, title, what in LEVERS4:
+        for m, title, what in LEVERS4 + LEVERS5:
             w(f"Lever {title}, on the harder set. The variant: {what}.\n")
             w(lever_table([r for r in hruns["runs"] if r["method"] == "nkrr"],
                           [r for r in hruns["runs"] if r["method"] == m], HARD_KINDS, "default", m))
@@ -867,8 +889,7 @@ def main():
     files = {"main": ["main.json", "main.wall"], "spsr": ["spsr"],
              "rerun": ["rerun.json", "rerun.wall"], "scaling": ["scaling.jsonl"],
              "ablations": ["ablations.json", "ablations.wall"], "bench": ["bench"],
-             "levers": ["levers.json", "levers.wall", "levers2.json", "levers2.wall", "levers3.json", "levers3.wall",
-                        "paper.json", "paper.wall"],
+             "levers": ["levers.json", "levers.wall", "levers-field.json", "levers-field.wall", "paper.json", "paper.wall"],
              "hard": ["hard-eval.json", "hard-eval.wall"],
              "prior": ["prior.json", "prior.wall", "prior-hard.json", "prior-hard.wall", "prior-compare.json"]}
     for p in redo:
@@ -885,7 +906,7 @@ def main():
     phases = a.phases.split(",")
     abl_shapes = a.ablation_shapes.split(",")
     if "main" in phases:
-        eval_phase(work, "main", ["--sizes", ",".join(SIZES), "--methods", "network,nkrr",
+        eval_phase(work, "main", ["--sizes", ",".join(SIZES), "--methods", "network,nkrr,nkrr-field",
                                   "--keep-meshes"])
     if "spsr" in phases:
         spsr_phase(work)

@@ -348,6 +348,11 @@ pub async fn reconstruct(
     // The blended field, meshed block by block behind the sweep (see [`Sweep`]).
     let mut sweep = Sweep::new(tiles);
     let mut evaluations = 0u64;
+    // Where a tile's time goes: the network on the device (encoding, decoding, their
+    // readbacks), the blend on the CPU (band nodes, the sweep, its meshing), and handing the
+    // finished pieces over (in the page: to the viewer). The page runs tiles several times
+    // slower than native; these say which part.
+    let (mut t_network, mut t_blend, mut t_pieces) = (0.0, 0.0, 0.0);
     // The tiles evaluate the network's field (the regression per tile is not built yet).
     let network = Field::Network;
     let mut evaluator: Option<crate::field::Evaluator> = None;
@@ -357,6 +362,7 @@ pub async fn reconstruct(
             return Err(PipelineError::Cancelled);
         }
         let ids = std::mem::take(ids);
+        let t_tile = now();
         if ids.len() >= MIN_TILE_POINTS {
             let points: Vec<[f32; 3]> = ids.iter().map(|&i| cloud.positions[i as usize]).collect();
             let seen = subsample(&points, settings.max_points, 1);
@@ -365,7 +371,9 @@ pub async fn reconstruct(
             let scale = tiles.size + 2.0 * o;
             let local = |p: [f64; 3]| [0, 1, 2].map(|a| ((p[a] - centre[a]) / scale) as f32);
             let normalised: Vec<[f32; 3]> = seen.iter().map(|p| local(p.map(|v| v as f64))).collect();
+            let t = now();
             let planes = engine.net.encode(&normalised).await?;
+            t_network += now() - t;
             let nodes = tiles.band_nodes(*tile, &points);
             let queries: Vec<[f32; 3]> = nodes
                 .iter()
@@ -384,10 +392,14 @@ pub async fn reconstruct(
                 None => evaluator.insert(network.evaluator(&engine.net, &planes, EVALUATION_CHUNK).map_err(field_error)?),
             };
             let mut values = Vec::with_capacity(queries.len());
+            let t = now();
             for chunk in queries.chunks(EVALUATION_CHUNK) {
                 values.extend(evaluator.evaluate(chunk).await.map_err(field_error)?);
             }
+            t_network += now() - t;
             evaluations += values.len() as u64;
+            // The evaluator is rebound to the next tile's planes before it decodes again.
+            engine.gpu.retire([planes.buffer]);
             for (&k, &v) in nodes.iter().zip(&values) {
                 sweep.add(*tile, k, v);
             }
@@ -396,13 +408,17 @@ pub async fn reconstruct(
         if !new.is_empty() {
             let mut piece = sweep.piece(new);
             crate::units::to_metres(settings.units, &mut piece.positions, cloud.origin);
+            let t = now();
             if !progress(&Stage::Meshed { positions: piece.positions, indices: piece.indices }) {
                 return Err(PipelineError::Cancelled);
             }
+            t_pieces += now() - t;
         }
+        t_blend += now() - t_tile;
     }
     progress(&Stage::Tile { done: of, of });
-    let mut timings = vec![("tiles", now() - t_all)];
+    t_blend -= t_network + t_pieces;
+    let mut timings = vec![("tiles", now() - t_all), ("network in tiles", t_network), ("blend in tiles", t_blend), ("pieces shown", t_pieces)];
 
     let t = now();
     let report = sweep.report();

@@ -113,9 +113,14 @@ fn tiles_blend_into_one_mesh_without_cracks_and_keep_the_object() {
     // Per tile, only the encoder's buffers are made: the decoder's are made once and rebound.
     let one = engine.gpu.allocations();
     pollster::block_on(engine.net.encode(&[[0.0, 0.0, 0.0], [0.1, 0.2, 0.3], [0.2, -0.1, 0.0]])).unwrap();
-    let per_encode = engine.gpu.allocations().since(&one).buffers;
+    let encoded = engine.gpu.allocations().since(&one);
+    let per_encode = encoded.buffers;
     let tiles = plan.tiles.len() as u64;
     assert!(made.buffers <= tiles * per_encode + 8, "{} buffers for {tiles} tiles, {per_encode} per encode", made.buffers);
+    // And each tile's are destroyed once spent, not left to the browser's garbage collector:
+    // an encoding keeps only its planes, and a scene no more than a few buffers in all.
+    assert_eq!(encoded.retired, per_encode - 1, "{encoded:?}");
+    assert!(made.buffers - made.retired <= 8, "{} of {} buffers made for {tiles} tiles were not retired", made.buffers - made.retired, made.buffers);
     assert_eq!(tiles_seen.first(), Some(&(0, plan.tiles.len())));
     assert_eq!(tiles_seen.last(), Some(&(plan.tiles.len(), plan.tiles.len())));
     let mesh = &rec.mesh;

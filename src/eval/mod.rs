@@ -378,8 +378,9 @@ pub const VARIANTS: &[(&str, Variant)] = &[
     // KRR on Fourier-encoded coordinates instead of the network's features.
     ("nkrr-euclidean", |s| Settings { euclidean: true, ..nkrr(s) }),
     // The paper's method as it stands in the paper: its tuning on every pair, its pairs, the
-    // level set as it is, every point and every piece kept.
+    // level set as it is (of the field, not a Poisson surface), every point and every piece kept.
     ("nkrr-paper", |s| Settings {
+        surface: crate::settings::Surface::Field,
         tune_pairs: None,
         lr: 0.1,
         steps: 100,

@@ -17,6 +17,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 pub struct Ledger {
     buffers: AtomicU64,
     buffer_bytes: AtomicU64,
+    retired: AtomicU64,
     bind_groups: AtomicU64,
     pipelines: AtomicU64,
     /// Whether the device counts its live buffer memory (decided once, at the first buffer).
@@ -30,6 +31,8 @@ pub struct Allocations {
     /// Buffers created (staging buffers for readback included), and their requested bytes.
     pub buffers: u64,
     pub buffer_bytes: u64,
+    /// Buffers destroyed explicitly once their work was submitted ([`super::Gpu::retire`]).
+    pub retired: u64,
     pub bind_groups: u64,
     pub pipelines: u64,
     /// The most buffer memory the device held at once since the last [`Ledger::begin`], when
@@ -43,6 +46,7 @@ impl Allocations {
         Allocations {
             buffers: self.buffers - earlier.buffers,
             buffer_bytes: self.buffer_bytes - earlier.buffer_bytes,
+            retired: self.retired - earlier.retired,
             bind_groups: self.bind_groups - earlier.bind_groups,
             pipelines: self.pipelines - earlier.pipelines,
             peak_live_bytes: self.peak_live_bytes,
@@ -62,6 +66,10 @@ impl Ledger {
         self.peak.fetch_max(live.max(0) as u64, Relaxed);
     }
 
+    pub(super) fn retired(&self, n: u64) {
+        self.retired.fetch_add(n, Relaxed);
+    }
+
     pub(super) fn bind_group(&self) {
         self.bind_groups.fetch_add(1, Relaxed);
     }
@@ -79,6 +87,7 @@ impl Ledger {
         Allocations {
             buffers: self.buffers.load(Relaxed),
             buffer_bytes: self.buffer_bytes.load(Relaxed),
+            retired: self.retired.load(Relaxed),
             bind_groups: self.bind_groups.load(Relaxed),
             pipelines: self.pipelines.load(Relaxed),
             peak_live_bytes: self.counted.load(Relaxed).then(|| self.peak.load(Relaxed)),

@@ -339,13 +339,32 @@ impl Gpu {
     }
 
     /// Reads `len` elements of `T` from the start of `buffer` (which needs COPY_SRC), through a
-    /// staging buffer made for this one read.
+    /// staging buffer made for this one read (and retired after it).
     pub async fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer, len: usize) -> Result<Vec<T>, GpuError> {
         let size = (len * std::mem::size_of::<T>()) as u64;
         if size == 0 {
             return Ok(Vec::new());
         }
-        self.read_via(&self.readback(size), buffer, len).await
+        let staging = self.readback(size);
+        let out = self.read_via(&staging, buffer, len).await;
+        self.retire([staging.buffer]);
+        out
+    }
+
+    /// Destroys buffers whose work has been submitted and that nothing will bind again: a
+    /// stage's scratch, a tile's planes. Natively dropping them would do; in the browser,
+    /// wgpu's WebGPU backend only drops the JS handle, and the GPU process keeps the memory
+    /// until the worker's garbage collector runs, which GPU memory does not prompt (wgpu issue
+    /// 4092): a scene's tiles grew Chromium's GPU process by ~90 MB a minute. Work already
+    /// submitted still completes (WebGPU and wgpu-core free a destroyed buffer only after it);
+    /// binding one again is a validation error, not a silent one.
+    pub fn retire(&self, buffers: impl IntoIterator<Item = wgpu::Buffer>) {
+        let mut n = 0;
+        for b in buffers {
+            b.destroy();
+            n += 1;
+        }
+        self.ledger.retired(n);
     }
 
     /// Reads `len` elements of `T` from the start of `buffer` through `staging`, which must

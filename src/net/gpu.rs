@@ -246,6 +246,21 @@ pub struct GpuNet {
 }
 
 
+/// An encoding's command encoder and the scratch buffers its passes use, retired once it is
+/// submitted ([`Gpu::retire`]): a scene encodes once per tile.
+struct Recording {
+    enc: wgpu::CommandEncoder,
+    scratch: Vec<wgpu::Buffer>,
+}
+
+impl Recording {
+    /// `b`, noted as scratch (a handle: the clone is the same buffer).
+    fn scratch(&mut self, b: wgpu::Buffer) -> wgpu::Buffer {
+        self.scratch.push(b.clone());
+        b
+    }
+}
+
 /// Output channels one U-Net invocation computes (4 vec4 accumulators).
 const CONV_BLOCK: usize = 16;
 
@@ -535,15 +550,16 @@ impl GpuNet {
             g.check_binding::<f32>(label, len)?;
             to_u32(label, len)?;
         }
-        let pts_buf = g.upload("cloud", bytemuck::cast_slice::<[f32; 3], f32>(points));
-        let cell_of = g.upload("cell_of", &cells.cell_of);
-        let cell_start = g.upload("cell_start", &cells.cell_start);
-        let cell_pts = g.upload("cell_pts", &cells.points);
-        let cell_dst = g.upload("cell_dst", &cells.cell_plane_cell);
-        let net = self.buf("point features", n * 4 * hb)?;
-        let cell_max = self.buf("cell maxima", k * 4 * hb)?;
-        let cfeat = self.buf("point codes", n * 4 * cb)?;
-        let scattered = self.buf("scattered planes", 3 * c_dim * rr)?;
+        let mut rec = Recording { enc: g.device.create_command_encoder(&Default::default()), scratch: Vec::new() };
+        let pts_buf = rec.scratch(g.upload("cloud", bytemuck::cast_slice::<[f32; 3], f32>(points)));
+        let cell_of = rec.scratch(g.upload("cell_of", &cells.cell_of));
+        let cell_start = rec.scratch(g.upload("cell_start", &cells.cell_start));
+        let cell_pts = rec.scratch(g.upload("cell_pts", &cells.points));
+        let cell_dst = rec.scratch(g.upload("cell_dst", &cells.cell_plane_cell));
+        let net = rec.scratch(self.buf("point features", n * 4 * hb)?);
+        let cell_max = rec.scratch(self.buf("cell maxima", k * 4 * hb)?);
+        let cfeat = rec.scratch(self.buf("point codes", n * 4 * cb)?);
+        let scattered = rec.scratch(self.buf("scattered planes", 3 * c_dim * rr)?);
 
         let block = |b: usize| {
             let s = |l: &str| self.enc_slot(&format!("encoder.blocks.{b}.{l}"));
@@ -558,8 +574,8 @@ impl GpuNet {
             }
         };
         let (pos, fc_c) = (self.enc_slot("encoder.fc_pos"), self.enc_slot("encoder.fc_c"));
-        let first = g.uniform("enc params", &EncParams { n: n as u32, lin_w: pos.w_off, lin_b: pos.b_off, ..block(0) });
-        let cellmax = g.uniform("enc params", &EncParams { n: (k * hb) as u32, ..Default::default() });
+        let first = rec.scratch(g.uniform("enc params", &EncParams { n: n as u32, lin_w: pos.w_off, lin_b: pos.b_off, ..block(0) }));
+        let cellmax = rec.scratch(g.uniform("enc params", &EncParams { n: (k * hb) as u32, ..Default::default() }));
         let blocks: Vec<wgpu::Buffer> = (1..ENCODER_BLOCKS)
             .map(|b| {
                 let p = EncParams {
@@ -569,23 +585,23 @@ impl GpuNet {
                     last: (b == ENCODER_BLOCKS - 1) as u32,
                     ..block(b)
                 };
-                g.uniform("enc params", &p)
+                rec.scratch(g.uniform("enc params", &p))
             })
             .collect();
-        let scatter = g.uniform("enc params", &EncParams { n: (k * cb) as u32, rr: rr as u32, ..Default::default() });
+        let scatter = rec.scratch(g.uniform("enc params", &EncParams { n: (k * cb) as u32, rr: rr as u32, ..Default::default() }));
 
-        let mut enc = g.device.create_command_encoder(&Default::default());
+        let enc = &mut rec.enc;
         let p = &self.pipes;
         use pointnet_at as at;
         self.pass(
-            &mut enc,
+            enc,
             &p.enc_first,
             &[(at::PRM, &first), (at::W, &self.enc_w), (at::POINTS, &pts_buf), (at::NET, &net)],
             n as u64,
         )?;
         for u in &blocks {
             self.pass(
-                &mut enc,
+                enc,
                 &p.enc_cellmax,
                 &[
                     (at::PRM, &cellmax),
@@ -597,7 +613,7 @@ impl GpuNet {
                 (k * hb) as u64,
             )?;
             self.pass(
-                &mut enc,
+                enc,
                 &p.enc_block,
                 &[
                     (at::PRM, u),
@@ -611,7 +627,7 @@ impl GpuNet {
             )?;
         }
         self.pass(
-            &mut enc,
+            enc,
             &p.enc_scatter,
             &[
                 (at::PRM, &scatter),
@@ -624,8 +640,10 @@ impl GpuNet {
             (k * cb) as u64,
         )?;
 
-        let out = self.unet(&mut enc, scattered)?;
-        g.queue.submit([enc.finish()]);
+        let out = self.unet(&mut rec, scattered)?;
+        g.queue.submit([rec.enc.finish()]);
+        // Every buffer but the planes is spent once the work is submitted.
+        g.retire(rec.scratch);
         if let Some(e) = scope.pop().await {
             return Err(GpuError::Kernel(format!("encoding: {e}")));
         }
@@ -635,21 +653,21 @@ impl GpuNet {
     /// Records one U-Net layer: a uniform with `prm`, then the dispatch.
     fn layer(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recording,
         pipeline: &wgpu::ComputePipeline,
         prm: ConvParams,
         entries: &[(u32, &wgpu::Buffer)],
     ) -> Result<(), GpuError> {
-        let u = self.gpu.uniform("U-Net params", &prm);
+        let u = rec.scratch(self.gpu.uniform("U-Net params", &prm));
         let mut all = vec![(conv2d_at::PRM, &u)];
         all.extend_from_slice(entries);
-        self.pass(enc, pipeline, &all, prm.total as u64)
+        self.pass(&mut rec.enc, pipeline, &all, prm.total as u64)
     }
 
     /// 3x3 conv + ReLU of `a` (`c_a` channels), or of the concatenation `[a | b]`, at reso `r`.
     fn conv3x3(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recording,
         name: &str,
         a: &wgpu::Buffer,
         b: Option<&wgpu::Buffer>,
@@ -661,7 +679,7 @@ impl GpuNet {
         // Concatenation only on the up path, where the skip has as many channels as the output.
         let c_b = if b.is_some() { c_out } else { 0 };
         let groups = c_out.div_ceil(CONV_BLOCK);
-        let out = self.buf(name, 3 * c_out * r * r)?;
+        let out = rec.scratch(self.buf(name, 3 * c_out * r * r)?);
         let total = 3 * groups * r * r.div_ceil(4);
         let prm = ConvParams {
             total: to_u32(name, total)?,
@@ -677,13 +695,13 @@ impl GpuNet {
         };
         use conv2d_at as at;
         let entries = [(at::IN_A, a), (at::IN_B, b.unwrap_or(a)), (at::WV, &self.unet_w), (at::OUT, &out)];
-        self.layer(enc, &self.pipes.conv3x3, prm, &entries)?;
+        self.layer(rec, &self.pipes.conv3x3, prm, &entries)?;
         Ok(out)
     }
 
     /// Records the U-Net over the three planes in `x` (`[3][c_dim][R][R]`); returns its output in
     /// the channel-last layout of [`GpuPlanes`].
-    fn unet(&self, enc: &mut wgpu::CommandEncoder, x: wgpu::Buffer) -> Result<wgpu::Buffer, GpuError> {
+    fn unet(&self, rec: &mut Recording, x: wgpu::Buffer) -> Result<wgpu::Buffer, GpuError> {
         let cfg = &self.config;
         let d = cfg.unet_depth;
         let mut x = x;
@@ -693,15 +711,15 @@ impl GpuNet {
         for k in 0..d {
             if k > 0 {
                 r /= 2;
-                let out = self.buf("maxpool", 3 * c * r * r)?;
+                let out = rec.scratch(self.buf("maxpool", 3 * c * r * r)?);
                 let total = to_u32("maxpool", 3 * c * r * r)?;
                 let prm = ConvParams { total, r: r as u32, ..Default::default() };
-                self.layer(enc, &self.pipes.maxpool2, prm, &[(conv2d_at::IN_A, &x), (conv2d_at::OUT, &out)])?;
+                self.layer(rec, &self.pipes.maxpool2, prm, &[(conv2d_at::IN_A, &x), (conv2d_at::OUT, &out)])?;
                 x = out;
             }
-            let y = self.conv3x3(enc, &format!("unet.down.{k}.conv0"), &x, None, c, r)?;
+            let y = self.conv3x3(rec, &format!("unet.down.{k}.conv0"), &x, None, c, r)?;
             c = cfg.filters(k);
-            x = self.conv3x3(enc, &format!("unet.down.{k}.conv1"), &y, None, c, r)?;
+            x = self.conv3x3(rec, &format!("unet.down.{k}.conv1"), &y, None, c, r)?;
             if k + 1 < d {
                 skips.push(x.clone());
             }
@@ -711,7 +729,7 @@ impl GpuNet {
             let name = format!("unet.up.{k}");
             let s = self.unet_slot(&format!("{name}.upconv"));
             r *= 2;
-            let up = self.buf("upconv", 3 * f * r * r)?;
+            let up = rec.scratch(self.buf("upconv", 3 * f * r * r)?);
             let groups = f.div_ceil(CONV_BLOCK);
             let prm = ConvParams {
                 total: to_u32("upconv", 3 * groups * (r / 2) * (r / 2))?,
@@ -724,9 +742,9 @@ impl GpuNet {
                 ..Default::default()
             };
             let entries = [(conv2d_at::IN_A, &x), (conv2d_at::WV, &self.unet_w), (conv2d_at::OUT, &up)];
-            self.layer(enc, &self.pipes.upconv2, prm, &entries)?;
-            let y = self.conv3x3(enc, &format!("{name}.conv0"), &up, Some(&skips[k]), f, r)?;
-            x = self.conv3x3(enc, &format!("{name}.conv1"), &y, None, f, r)?;
+            self.layer(rec, &self.pipes.upconv2, prm, &entries)?;
+            let y = self.conv3x3(rec, &format!("{name}.conv0"), &up, Some(&skips[k]), f, r)?;
+            x = self.conv3x3(rec, &format!("{name}.conv1"), &y, None, f, r)?;
             c = f;
         }
         let s = self.unet_slot("unet.final");
@@ -744,7 +762,7 @@ impl GpuNet {
             ..Default::default()
         };
         let entries = [(conv2d_at::IN_A, &x), (conv2d_at::WV, &self.unet_w), (conv2d_at::OUT4, &out)];
-        self.layer(enc, &self.pipes.final1x1, prm, &entries)?;
+        self.layer(rec, &self.pipes.final1x1, prm, &entries)?;
         Ok(out)
     }
 

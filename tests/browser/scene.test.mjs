@@ -114,6 +114,14 @@ test('a big scan reconstructs in the page (measurement)', { skip: !BIG && 'set N
       return execFileSync('ps', ['-C', 'chromium', '-o', 'rss='], { encoding: 'utf8' }).split('\n').reduce((s, l) => s + (Number(l) || 0), 0) * 1024;
     } catch { return 0; }
   };
+  // The GPU process alone too: WebGPU buffers the page no longer holds but has not destroyed
+  // stay there until the worker's garbage collector runs (wgpu's web backend only drops them).
+  const gpuRss = () => {
+    try {
+      return execFileSync('ps', ['-C', 'chromium', '-o', 'rss=,args='], { encoding: 'utf8' }).split('\n')
+        .filter((l) => l.includes('--type=gpu-process')).reduce((s, l) => s + (Number(l.trim().split(/\s+/)[0]) || 0), 0) * 1024;
+    } catch { return 0; }
+  };
   let peak = 0;
   const sampler = setInterval(() => { peak = Math.max(peak, rss()); }, 2000);
   let stageLog;
@@ -141,8 +149,8 @@ test('a big scan reconstructs in the page (measurement)', { skip: !BIG && 'set N
     fs.writeFileSync(progressFile, '');
     stageLog = setInterval(async () => {
       const stage = await page.textContent('#stage').catch(() => undefined);
-      fs.appendFileSync(progressFile, JSON.stringify({ s: Math.round((Date.now() - t0) / 1000), stage, rss_mib: Math.round(rss() / 2 ** 20) }) + '\n');
-    }, 60_000);
+      fs.appendFileSync(progressFile, JSON.stringify({ s: Math.round((Date.now() - t0) / 1000), stage, rss_mib: Math.round(rss() / 2 ** 20), gpu_process_mib: Math.round(gpuRss() / 2 ** 20) }) + '\n');
+    }, Number(process.env.NKRR_SCENE_LOG_S || 60) * 1000);
     const watch = setInterval(async () => {
       const p = await page.evaluate(() => document.body.dataset.preview).catch(() => undefined);
       if (p && pieces.at(-1) !== p) pieces.push(p);
