@@ -21,7 +21,8 @@ so mean = (1 - beyond_share) * within_mean + beyond_share * beyond_mean, and
 beyond_cd_share = beyond_share * beyond_mean / mean. scripts/error_map.py renders where the
 beyond-tau samples sit.
 
-An interim Python measurement (trimesh + scipy) until the metrics live in the Rust library.
+An independent Python measurement (trimesh + scipy): `nkrr metrics` reports the same split
+under the same names (src/eval/mod.rs), and scripts/error_map.py draws from this one's samples.
 
     .venv/bin/python scripts/eval_metrics.py GT.obj RECON.glb [RECON.glb ...]   -> one JSON line each
 

@@ -574,8 +574,9 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
       "where the beyond-tau error sits, in `scripts/render.py`'s four views: the ground truth "
       "coloured by its distance to the reconstruction (missing parts) above the reconstruction "
       "coloured by its distance to the truth (extra surface); grey within tau, a yellow-red-"
-      "purple ramp from tau to 5 tau (`--vmax`). The tables below are `nkrr metrics`', which "
-      "does not report the split yet.")
+      "purple ramp from tau to 5 tau (`--vmax`). `nkrr metrics` and `nkrr eval` report the same split "
+      "in their JSON (same names; `nkrr eval`'s tables add the pooled `beyond_cd_share` as 'beyond τ') "
+      "from commit 'nkrr metrics: the error split' on; the tables below are `nkrr metrics`'.")
     w("- GPU reference: the H100 numbers of [docs/krr.md](krr.md#nkrr-vs-the-network-alone-on-"
       "the-eval-clouds-h100-paper-settings) (not re-run here; the metrics there were the same "
       "protocol, the times not benchmarks).\n")

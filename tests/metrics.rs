@@ -90,6 +90,24 @@ fn identical_meshes_score_perfectly() {
     assert_eq!(metrics(&m, &m), metrics(&m, &m));
 }
 
+/// The split's identities (scripts/eval_metrics.py's): each side's mean is the metric's, its
+/// parts recombine to it, the precision side's share beyond τ is 1 − precision, and the pooled
+/// mean is CD1.
+fn split_recombines(m: &Metrics) {
+    let sp = &m.split;
+    close(sp.precision.mean, m.accuracy, 1e-12, "precision side = accuracy");
+    close(sp.completeness.mean, m.completeness, 1e-12, "completeness side");
+    close(sp.pooled.mean, m.cd1, 1e-12, "pooled = CD1");
+    close(sp.precision.beyond_share, 1.0 - m.precision, 1e-12, "beyond share = 1 - precision");
+    close(sp.completeness.beyond_share, 1.0 - m.recall, 1e-12, "beyond share = 1 - recall");
+    for s in [sp.precision, sp.completeness, sp.pooled] {
+        let (w, b) = (s.within_mean.unwrap_or(0.0), s.beyond_mean.unwrap_or(0.0));
+        close((1.0 - s.beyond_share) * w + s.beyond_share * b, s.mean, 1e-12, "mean from its parts");
+        close(s.beyond_share * b, s.beyond_cd_share * s.mean, 1e-12, "beyond share of the mean");
+        assert!(s.within_mean.is_none_or(|w| w < 0.01) && s.beyond_mean.is_none_or(|b| b >= 0.01), "{s:?}");
+    }
+}
+
 #[test]
 fn concentric_spheres_match_the_analytic_values() {
     let gt = sphere(6);
@@ -100,6 +118,11 @@ fn concentric_spheres_match_the_analytic_values() {
     close(m.accuracy, (1.0 - r) / 2.0, 0.001, "accuracy");
     close(m.completeness, (1.0 - r) / 2.0, 0.001, "completeness");
     assert_eq!(m.fscore, 0.0);
+    // 0.1 apart, ten times τ: every sample is beyond it and carries the whole error.
+    split_recombines(&m);
+    for s in [m.split.precision, m.split.completeness, m.split.pooled] {
+        assert_eq!((s.beyond_share, s.within_mean, s.beyond_cd_share), (1.0, None, 1.0), "{s:?}");
+    }
     close(m.iou.unwrap(), r * r * r, 0.01, "IoU = r³");
     assert!(m.nc > 0.99, "{m:?}");
     // 0.5 % of the size apart: within τ = 1 % almost everywhere.
@@ -109,6 +132,9 @@ fn concentric_spheres_match_the_analytic_values() {
     let want = 0.5 * (expected_nn(0.005, 1e5 / pi) + expected_nn(0.005, 1e5 / (pi * 0.99 * 0.99)));
     close(m.cd1, want, 0.02 * want, "CD1, r = 0.99");
     assert!(m.fscore > 0.98, "{m:?}");
+    // Almost all within τ: the error is where the surface is right.
+    split_recombines(&m);
+    assert!(m.split.pooled.beyond_share < 0.02 && m.split.pooled.beyond_cd_share < 0.05, "{:?}", m.split);
     close(m.iou.unwrap(), 0.99f64.powi(3), 0.01, "IoU, r = 0.99");
     // Larger than the ground truth: IoU = 1/r³, CD still |1 - r|/2.
     let m = metrics(&gt, &map(&gt, |p| p.map(|x| 1.05 * x)));
@@ -216,6 +242,7 @@ fn agrees_with_the_python_reference_on_spot() {
         [q[0] + 0.01 * n.scale, q[1], q[2]]
     });
     let m = g.evaluate(&rec).unwrap();
+    split_recombines(&m);
     close(m.cd1x100(), 0.7864, 0.005, "CD1x100");
     close(m.fscore, 0.6909, 0.005, "F");
     close(m.nc, 0.9830, 0.001, "NC");

@@ -19,6 +19,11 @@
 //!    * **Normal consistency** = ½ (mean |n·n_nearest| over reconstruction samples + the same
 //!      over ground-truth samples), with the face normals of the two samples. The absolute value
 //!      makes it blind to orientation (a flipped mesh scores as well as the original).
+//!    * **Where the error sits** ([`ErrorSplit`], issue 26): each side's distances cut at τ, the
+//!      share of samples beyond it, the mean within and beyond, and the beyond samples' share of
+//!      the side's mean (pooled: of CD1). Precision-side error beyond τ is extra, merged or
+//!      displaced surface; completeness-side error beyond τ is a missing part. The same
+//!      definitions as `scripts/eval_metrics.py`, whose `scripts/error_map.py` draws where they sit.
 //! 4. **Volumetric IoU**, only when the ground truth is watertight ([`Mesh::is_watertight`]:
 //!    closed and consistently oriented, edges compared by vertex index), since otherwise its
 //!    inside is undefined; `None` otherwise. [`Protocol::iou_points`] (100k) uniform points in the
@@ -100,6 +105,57 @@ pub struct Metrics {
     pub gt_watertight: bool,
     pub recon_watertight: bool,
     pub recon_triangles: usize,
+    /// Where the error sits against τ.
+    pub split: ErrorSplit,
+}
+
+/// The error within and beyond τ: per side and both sides pooled (the two sides have as many
+/// samples each, so the pooled figures recombine to CD1 as the sides do to their means).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ErrorSplit {
+    /// Reconstruction → ground truth.
+    pub precision: SideSplit,
+    /// Ground truth → reconstruction.
+    pub completeness: SideSplit,
+    pub pooled: SideSplit,
+}
+
+/// One side's distances cut at τ (within: `d < τ`, as the F-score counts), so that
+/// `mean = (1 − beyond_share)·within_mean + beyond_share·beyond_mean` and
+/// `beyond_cd_share = beyond_share·beyond_mean / mean`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SideSplit {
+    pub mean: f64,
+    /// The share of samples at distance ≥ τ.
+    pub beyond_share: f64,
+    /// Mean distance of the samples within τ (`None` when there are none).
+    pub within_mean: Option<f64>,
+    /// Mean distance of the samples beyond τ (`None` when there are none).
+    pub beyond_mean: Option<f64>,
+    /// The beyond samples' share of the sum of distances (0 when it is 0).
+    pub beyond_cd_share: f64,
+}
+
+impl SideSplit {
+    fn of(d: impl Iterator<Item = f64>, tau: f64) -> SideSplit {
+        let (mut n, mut nb, mut sum, mut sum_b) = (0usize, 0usize, 0.0, 0.0);
+        for v in d {
+            n += 1;
+            sum += v;
+            if v >= tau {
+                nb += 1;
+                sum_b += v;
+            }
+        }
+        let nw = n - nb;
+        SideSplit {
+            mean: sum / n.max(1) as f64,
+            beyond_share: nb as f64 / n.max(1) as f64,
+            within_mean: (nw > 0).then(|| (sum - sum_b) / nw as f64),
+            beyond_mean: (nb > 0).then(|| sum_b / nb as f64),
+            beyond_cd_share: if sum > 0.0 { sum_b / sum } else { 0.0 },
+        }
+    }
 }
 
 impl Metrics {
@@ -229,6 +285,11 @@ impl GroundTruth {
             (either > 0).then(|| both as f64 / either as f64)
         });
         let (accuracy, completeness) = (mean(&to_gt, &|x| x.0), mean(&to_rec, &|x| x.0));
+        let split = ErrorSplit {
+            precision: SideSplit::of(to_gt.iter().map(|x| x.0), tau),
+            completeness: SideSplit::of(to_rec.iter().map(|x| x.0), tau),
+            pooled: SideSplit::of(to_gt.iter().chain(&to_rec).map(|x| x.0), tau),
+        };
         Ok(Metrics {
             cd1: 0.5 * (accuracy + completeness),
             accuracy,
@@ -241,6 +302,7 @@ impl GroundTruth {
             gt_watertight: self.watertight,
             recon_watertight: recon.is_watertight(),
             recon_triangles: recon.triangle_count(),
+            split,
         })
     }
 }

@@ -515,7 +515,24 @@ fn metrics_json(m: &nkrr::eval::Metrics) -> String {
         100.0 * m.accuracy,
         100.0 * m.completeness,
         m.recon_triangles
-    )
+    ) + &split_json(&m.split)
+}
+
+/// The error split as JSON members with scripts/eval_metrics.py's names: `precision_*`,
+/// `completeness_*` and, pooled, no prefix.
+fn split_json(s: &nkrr::eval::ErrorSplit) -> String {
+    let x100 = |v: Option<f64>| v.map_or("null".to_string(), |v| format!("{:.4}", 100.0 * v));
+    let side = |prefix: &str, s: &nkrr::eval::SideSplit, with_mean: bool| {
+        let mean = if with_mean { format!(", \"{prefix}mean_x100\": {:.4}", 100.0 * s.mean) } else { String::new() };
+        format!(
+            "{mean}, \"{prefix}beyond_share\": {:.5}, \"{prefix}within_mean_x100\": {}, \"{prefix}beyond_mean_x100\": {}, \"{prefix}beyond_cd_share\": {:.4}",
+            s.beyond_share,
+            x100(s.within_mean),
+            x100(s.beyond_mean),
+            s.beyond_cd_share
+        )
+    };
+    side("precision_", &s.precision, true) + &side("completeness_", &s.completeness, true) + &side("", &s.pooled, false)
 }
 
 fn metrics(args: &[String]) -> Result<(), Failure> {
@@ -701,26 +718,29 @@ fn write_eval_reports(
         "# nkrr eval: {dir}\n\nAdapter: {adapter}. Base settings (the method is set per row): {base:?}.\n\n\
          Protocol (nkrr::eval): ground truth normalised to the unit cube, 100k area-weighted samples per surface; \
          CD1 ×100 (↓), F-score at τ = 0.01 (↑), normal consistency (↑); IoU (↑) from 100k uniform points in \
-         [-0.55, 0.55]³, only where the ground truth is watertight. Times in seconds (metrics: the scoring itself).\n"
+         [-0.55, 0.55]³, only where the ground truth is watertight. Times in seconds (metrics: the scoring itself). \
+         Beyond τ: the share of CD1 carried by the samples farther than τ (missing or extra surface; the rest is \
+         the error where the surface is right), both sides pooled; the JSON has the split per side.\n"
     );
     for size in sizes {
         let rows: Vec<&EvalRun> = runs.iter().filter(|r| &r.size == size).collect();
         if rows.is_empty() {
             continue;
         }
-        md += &format!("\n## {size} points\n\n| shape | method | CD1×100 | F | NC | IoU | triangles | watertight | features | pairs | tuning | mesh | total | metrics |\n");
-        md += "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |\n";
+        md += &format!("\n## {size} points\n\n| shape | method | CD1×100 | F | NC | IoU | beyond τ | triangles | watertight | features | pairs | tuning | mesh | total | metrics |\n");
+        md += "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |\n";
         for r in &rows {
             match &r.result {
                 Ok(m) => {
                     md += &format!(
-                        "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                        "| {} | {} | {} | {} | {} | {} | {:.2} | {} | {} |",
                         r.shape,
                         r.method,
                         f4(Some(m.cd1x100())),
                         f4(Some(m.fscore)),
                         f4(Some(m.nc)),
                         f4(m.iou),
+                        m.split.pooled.beyond_cd_share,
                         m.recon_triangles,
                         if m.recon_watertight { "yes" } else { "no" }
                     );
@@ -729,7 +749,7 @@ fn write_eval_reports(
                     }
                     md += "\n";
                 }
-                Err(e) => md += &format!("| {} | {} | failed: {} |||||||||||\n", r.shape, r.method, e.replace('|', "/").replace('\n', " ")),
+                Err(e) => md += &format!("| {} | {} | failed: {} ||||||||||||\n", r.shape, r.method, e.replace('|', "/").replace('\n', " ")),
             }
         }
         // Means per method over the shapes that succeeded (IoU over those that have it).
@@ -744,11 +764,12 @@ fn write_eval_reports(
             let label = if ok.len() == all { "**mean**".to_string() } else { format!("**mean** ({} of {all})", ok.len()) };
             let ious: Vec<f64> = ok.iter().filter_map(|(_, m)| m.iou).collect();
             md += &format!(
-                "| {label} | {method} | {} | {} | {} | {} | | |",
+                "| {label} | {method} | {} | {} | {} | {} | {} | | |",
                 f4(mean(ok.iter().map(|(_, m)| m.cd1x100()).collect())),
                 f4(mean(ok.iter().map(|(_, m)| m.fscore).collect())),
                 f4(mean(ok.iter().map(|(_, m)| m.nc).collect())),
                 f4(mean(ious)),
+                f2(mean(ok.iter().map(|(_, m)| m.split.pooled.beyond_cd_share).collect())),
             );
             for s in STAGES {
                 md += &format!(" {} |", f2(mean(ok.iter().filter_map(|(r, _)| time(r, s)).collect())));
