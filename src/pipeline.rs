@@ -255,8 +255,8 @@ impl Engine {
                 return Err(PipelineError::Cancelled);
             }
             let t = now();
-            let (chi, flipped) = crate::poisson::from_mesh(&extraction.mesh, &points, crate::poisson::grid_for(opts.domain, opts.resolution));
-            // χ is a trilinear lookup, searched coarse to fine as the field is (the dense grid
+            let (chi, flipped) = crate::poisson::from_mesh(&extraction.mesh, &points, crate::poisson::grid_for(opts.domain, opts.resolution, points.len()));
+            // χ is a cubic lookup, searched coarse to fine as the field is (the dense grid
             // gave the same triangles on the tuning shapes, for twice the memory); the field's
             // evaluation count is kept for the report.
             let field_stats = extraction.stats.refine.clone();

@@ -103,9 +103,9 @@ pub fn surface(settings: &Settings, n: usize) -> (bool, Option<String>) {
         Surface::Poisson => true,
         Surface::Auto => n >= POISSON_POINTS,
     };
-    let grid = crate::poisson::grid_resolution(settings.resolution);
-    let coarser = (poisson && settings.resolution / 2 > crate::poisson::MAX_GRID)
-        .then(|| format!("solve the Poisson surface on a {grid}³ grid (not half the mesh's {}³: the most it solves) and march its trilinear interpolation at {}³", settings.resolution, settings.resolution));
+    let (grid, wanted) = (crate::poisson::grid_resolution(settings.resolution, n), crate::poisson::grid_wanted(settings.resolution, n));
+    let coarser = (poisson && wanted > grid)
+        .then(|| format!("solve the Poisson surface on a {grid}³ grid (not the {wanted}³ a {}³ mesh of {n} points would have: the most it solves) and march it at {}³", settings.resolution, settings.resolution));
     (poisson, coarser)
 }
 
@@ -282,7 +282,7 @@ pub fn memory_plan(points: usize, colours: bool, settings: &Settings, cfg: &NetC
     stages.push(stage("meshing", planes.and(evaluate).and(polygonize)));
     if poisson {
         // The solve on the host while the evaluator is still held, then χ's marching cubes.
-        stages.push(stage("poisson", planes.and(evaluate).and(polygonize).and(Footprint::host(crate::poisson::host_bytes(settings.resolution)))));
+        stages.push(stage("poisson", planes.and(evaluate).and(polygonize).and(Footprint::host(crate::poisson::host_bytes(settings.resolution, n as usize)))));
     }
     if settings.fit || settings.trim.is_some() || (colours && settings.colors) {
         let mut host = 12 * size.triangles + 12 * size.active;
@@ -364,7 +364,7 @@ mod tests {
         // what was asked), the field's level set below.
         let p = plan(POISSON_POINTS, &auto);
         assert!(p.poisson && p.decisions.is_empty(), "{:?}", p.decisions);
-        assert!(p.stages.iter().any(|s| s.name == "poisson" && s.host_bytes >= crate::poisson::host_bytes(auto.resolution)));
+        assert!(p.stages.iter().any(|s| s.name == "poisson" && s.host_bytes >= crate::poisson::host_bytes(auto.resolution, POISSON_POINTS)));
         let p = plan(POISSON_POINTS - 1, &auto);
         assert!(!p.poisson && p.decisions.is_empty() && !p.stages.iter().any(|s| s.name == "poisson"), "{:?}", p.decisions);
         // Asked for: as asked, whatever the size; a finer mesh than the solve's grid is said.
