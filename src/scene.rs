@@ -303,6 +303,13 @@ impl TilePlan {
     }
 }
 
+/// What a tile runs, for the preflight's plan of the largest tile: the network's field meshed as
+/// it is (the regression per tile is not built, and the scene's mesh is the level set of the
+/// blended field, not a Poisson surface), whatever `settings` ask of one object.
+pub fn tile_settings(settings: &Settings) -> Settings {
+    Settings { method: Method::Network, surface: crate::settings::Surface::Field, ..settings.clone() }
+}
+
 /// Reconstructs `cloud` (whose file says `scale` of its size, see [`decide`]) the way [`decide`] picks: in tiles when it is a scene, else whole
 /// ([`Engine::reconstruct`]). The CLI, the page and the JS API all come through here.
 pub async fn reconstruct_auto(

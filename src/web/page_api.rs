@@ -176,7 +176,7 @@ pub fn preflight(
                 format!("scene     will {}", tiles.reason),
                 format!("per tile  one tile at a time, the largest taking in about {largest} points with its overlap:"),
             ];
-            lines.extend(crate::plan::memory_plan(largest, colours, &opts.settings, &config, &facts).lines());
+            lines.extend(crate::plan::memory_plan(largest, colours, &crate::scene::tile_settings(&opts.settings), &config, &facts).lines());
             Ok(lines)
         }
         None => Ok(crate::plan::memory_plan(points, colours, &opts.settings, &config, &facts).lines()),

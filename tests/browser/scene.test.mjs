@@ -38,6 +38,8 @@ test('a small room reconstructs in tiles: progress per tile, the scene notice, a
     const preflight = await page.$$eval('#preflight-lines li', (ls) => ls.map((l) => l.textContent));
     assert.ok(preflight.some((l) => /^scene\s+will reconstruct the cloud as a scene in \d+ tiles/.test(l)), JSON.stringify(preflight));
     assert.ok(preflight.some((l) => /^per tile\s+.*about \d+ points/.test(l)), JSON.stringify(preflight));
+    // A tile runs the network's field and its level set: no Poisson solve, no tuning, to plan.
+    assert.ok(!preflight.some((l) => /^(poisson|tuning|pairs)\b/.test(l)), JSON.stringify(preflight));
     // Every stage the page shows, in order.
     await page.evaluate(() => {
       window.__stages = [];
