@@ -685,7 +685,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
         if prior:
             w(prior_section(prior, runs, hard))
         else:
-            w("Not run (phase `prior`: no second prior at the path given).\n")
+            w("Not run in this report (phase `prior` left out of `--phases`, or no second prior at the path given; the notes below say which).\n")
         if paper:
             w("### All of them: the paper's method\n")
             w("`nkrr-paper`: the paper's tuning (all pairs, lr 0.1, 100 steps, lowest training error), "
