@@ -501,9 +501,9 @@ pub fn grid_for(domain: ([f32; 3], [f32; 3]), resolution: u32, points: usize) ->
     Grid::over(domain, grid_resolution(resolution, points) as usize)
 }
 
-/// The solve's cells a side for a mesh at `resolution` from `points` points: 5/16 of the mesh's
-/// (40³ for 128³) up to about 16k points, growing as √points to half the mesh's from 40k, at
-/// most [`MAX_GRID`]. A grid finer than the points' spacing dimples the surface between them
+/// The solve's cells a side for a mesh at `resolution` from `points` points: 40 up to about 16k
+/// points, growing as √points (64 at 40k), never more than half the mesh's cells nor
+/// [`MAX_GRID`]. A grid finer than the points' spacing dimples the surface between them
 /// and follows their noise. Chosen on the tuning shapes (cow, fandisk, suzanne) with the cubic
 /// interpolation of [`Solution::value`], mean CD1 x100 / F-score / NC for a 128³ mesh:
 ///
@@ -525,14 +525,19 @@ pub fn grid_resolution(resolution: u32, points: usize) -> u32 {
 /// [`grid_resolution`] before [`MAX_GRID`] caps it.
 pub fn grid_wanted(resolution: u32, points: usize) -> u32 {
     let by_points = (GRID_PER_ROOT_POINT * (points as f64).sqrt()).round() as u32;
-    by_points.clamp(resolution * 5 / 16, resolution / 2)
+    by_points.max(MIN_GRID).min(resolution / 2)
 }
 
-/// Grid cells a side per √points, between 5/16 and half the mesh's cells: 64 cells (the half of
-/// a 128³ mesh, the grid before the cubic interpolation) from 40k points on. The eval clouds (3k
-/// and 10k points) are all at the lower bound; larger clouds keep the finer grid they had, as
+/// Grid cells a side per √points above [`MIN_GRID`], at most half the mesh's cells: 64 (the half
+/// of a 128³ mesh, the grid before the cubic interpolation) from 40k points on. The eval clouds
+/// (3k and 10k points) are all at [`MIN_GRID`]; larger clouds keep the finer grid they had, as
 /// nothing was measured there.
 const GRID_PER_ROOT_POINT: f64 = 0.32;
+
+/// The coarsest grid for a mesh of at least 80 cells a side: what the points' spacing asks,
+/// whatever the mesh's resolution (measured at 128³; a coarser mesh keeps half its cells, as
+/// before, and a finer one no longer refines the solve past the points).
+const MIN_GRID: u32 = 40;
 
 /// Host bytes the solve holds at its peak for a mesh at `resolution` (about ten node vectors of
 /// f64 at the finest level, measured 160 MB at 128³, and a seventh more for the coarser ones).
