@@ -151,17 +151,18 @@ LEVERS5 = [
 FIELD_LEVERS = {"nkrr-paper-pairs", "nkrr-select-training", "nkrr-prior-mean", "nkrr-position",
                 "nkrr-position-prior-mean", "nkrr-no-across"}
 FIELD = ["--surface", "field"]
+# Every lever with its own run, split by the surface it runs on.
+ALL_LEVERS = LEVERS + LEVERS2 + LEVERS3 + LEVERS4
+FIELD_RUN = [m for m, _, _ in ALL_LEVERS if m in FIELD_LEVERS]
+DEFAULT_RUN = [m for m, _, _ in ALL_LEVERS if m not in FIELD_LEVERS]
 HARD_KINDS = ["noise", "outliers", "falloff", "onesided"]
 
 
 def levers_phase(work):
     """Every lever's variant at 500 / 3k / 10k (WORK/levers.json) and the paper's
     method whole at 500 and 3k (WORK/paper.json, meshes kept: the before of the renders)."""
-    every = LEVERS + LEVERS2 + LEVERS3 + LEVERS4
-    field = eval_phase(work, "levers-field", ["--sizes", ",".join(SIZES), "--methods",
-                                              ",".join(m for m, _, _ in every if m in FIELD_LEVERS)] + FIELD)
-    rest = eval_phase(work, "levers", ["--sizes", ",".join(SIZES), "--methods",
-                                       ",".join(m for m, _, _ in every if m not in FIELD_LEVERS)])
+    field = eval_phase(work, "levers-field", ["--sizes", ",".join(SIZES), "--methods", ",".join(FIELD_RUN)] + FIELD)
+    rest = eval_phase(work, "levers", ["--sizes", ",".join(SIZES), "--methods", ",".join(DEFAULT_RUN)])
     levers = {"runs": field["runs"] + rest["runs"], "wall_s": sum(x["wall_s"] or 0 for x in (field, rest))}
     # The paper's method has the field's level set as its mesh (nkrr-paper sets it).
     paper = eval_phase(work, "paper", ["--sizes", "500,3k", "--methods", "nkrr-paper", "--keep-meshes"])
@@ -590,11 +591,9 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w(f"nkrr eval target/results/data --sizes 3k --methods network,nkrr --shapes "
       f"{','.join(RERUN_SHAPES)}   # the re-run")
     w("/usr/bin/time -v nkrr reconstruct scale-N.ply -o out.glb --method network|nkrr")
-    every = LEVERS + LEVERS2 + LEVERS3 + LEVERS4
-    w("nkrr eval target/results/data --sizes 500,3k,10k --methods "
-      + ",".join(m for m, _, _ in every if m in FIELD_LEVERS) + " --surface field   # the regression's levers")
-    w("nkrr eval target/results/data --sizes 500,3k,10k --methods "
-      + ",".join(m for m, _, _ in every if m not in FIELD_LEVERS) + "   # the others")
+    w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(FIELD_RUN)
+      + " --surface field   # the regression's levers")
+    w("nkrr eval target/results/data --sizes 500,3k,10k --methods " + ",".join(DEFAULT_RUN) + "   # the others")
     w("nkrr eval target/results/data --sizes 500,3k --methods nkrr-paper --keep-meshes")
     w("scripts/hard_clouds.py --spsr   # the harder clouds and screened Poisson on them")
     w("nkrr eval target/results/hard --sizes " + ",".join(HARD_KINDS)
@@ -668,11 +667,11 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
         nk = [r for r in runs if r["method"] == "nkrr"]
         w("Each lever turned back on its own (levers 1, 2 and 5 on noisy clouds, not defaults: turned on), everything else at the "
           "defaults, on the same clouds as the main run (`nkrr eval --methods "
-          + ",".join(m for m, _, _ in LEVERS + LEVERS2 + LEVERS3 + LEVERS4) + "`). Settings were chosen on cow, fandisk and "
+          + ",".join(m for m, _, _ in ALL_LEVERS) + "`). Settings were chosen on cow, fandisk and "
           "suzanne; spot, stanford-bunny and teapot were not used to choose them (per-shape rows: "
           "`target/results/levers.md`).\n")
         nkf = [r for r in runs if r["method"] == "nkrr-field"]
-        for m, title, what in LEVERS + LEVERS2 + LEVERS3 + LEVERS4 + LEVERS5:
+        for m, title, what in ALL_LEVERS + LEVERS5:
             w(f"### Lever {title}\n")
             w(f"The variant: {what}.\n")
             if m in FIELD_LEVERS:

@@ -61,19 +61,25 @@ impl Grid {
     /// `c`: +1 along x when `c & 1`, y when `c & 2`, z when `c & 4`), for `p` clamped into the grid.
     fn stencil(&self, p: [f32; 3]) -> (usize, [f64; 8]) {
         let s = self.side();
-        let mut base = [0usize; 3];
-        let mut f = [0.0f64; 3];
-        for a in 0..3 {
-            let u = ((p[a] as f64 - self.lo[a]) / self.h).clamp(0.0, self.res as f64);
-            let b = (u.floor() as usize).min(self.res - 1);
-            base[a] = b;
-            f[a] = u - b as f64;
-        }
+        let (base, f) = self.locate(p);
         let mut w = [0.0; 8];
         for (c, w) in w.iter_mut().enumerate() {
             *w = (0..3).map(|a| if c >> a & 1 == 1 { f[a] } else { 1.0 - f[a] }).product();
         }
         (base[0] + s * (base[1] + s * base[2]), w)
+    }
+
+    /// The cell holding `p` (clamped into the grid: its lowest node per axis) and `p`'s place
+    /// in it, 0..=1 per axis.
+    fn locate(&self, p: [f32; 3]) -> ([usize; 3], [f64; 3]) {
+        let mut base = [0usize; 3];
+        let mut f = [0.0f64; 3];
+        for a in 0..3 {
+            let u = ((p[a] as f64 - self.lo[a]) / self.h).clamp(0.0, self.res as f64);
+            base[a] = (u.floor() as usize).min(self.res - 1);
+            f[a] = u - base[a] as f64;
+        }
+        (base, f)
     }
 
     /// Index offsets of the 8 corners from a cell's lowest node.
@@ -142,22 +148,13 @@ impl Solution {
     pub fn value(&self, p: [f32; 3]) -> f32 {
         let g = &self.grid;
         let s = g.side();
-        let mut base = [0i64; 3];
-        let mut w = [[0.0f64; 4]; 3];
-        for a in 0..3 {
-            let u = ((p[a] as f64 - g.lo[a]) / g.h).clamp(0.0, g.res as f64);
-            let b = (u.floor() as usize).min(g.res - 1);
-            let t = u - b as f64;
-            base[a] = b as i64;
+        let (base, f) = g.locate(p);
+        let w = f.map(|t| {
             let (t2, t3) = (t * t, t * t * t);
-            w[a] = [
-                0.5 * (-t3 + 2.0 * t2 - t),
-                0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
-                0.5 * (-3.0 * t3 + 4.0 * t2 + t),
-                0.5 * (t3 - t2),
-            ];
-        }
-        let idx = |a: usize, k: usize| (base[a] + k as i64 - 1).clamp(0, g.res as i64) as usize;
+            [0.5 * (-t3 + 2.0 * t2 - t), 0.5 * (3.0 * t3 - 5.0 * t2 + 2.0), 0.5 * (-3.0 * t3 + 4.0 * t2 + t), 0.5 * (t3 - t2)]
+        });
+        // Nodes base − 1 ..= base + 2 along each axis, those past the border clamped to it.
+        let idx = |a: usize, k: usize| (base[a] + k).saturating_sub(1).min(g.res);
         let mut v = 0.0;
         for k in 0..4 {
             let z = idx(2, k);
@@ -790,8 +787,6 @@ mod tests {
         assert!((0.35..0.5).contains(&half), "{half}");
     }
 
-    /// An odd resolution (no halving to a small grid) still solves, by smoothing on the
-    /// coarsest grid.
     #[test]
     fn the_cubic_lookup_passes_through_the_nodes_and_keeps_quadratics() {
         // Catmull-Rom reproduces quadratics exactly away from the border (Keys' a = −½), so a
@@ -814,6 +809,8 @@ mod tests {
         assert!((sol.value([0.1, -0.2, 0.3]) as f64 - q([0.1, -0.2, 0.3])).abs() < 1e-6);
     }
 
+    /// An odd resolution (no halving to a small grid) still solves, by smoothing on the
+    /// coarsest grid.
     #[test]
     fn odd_resolution_solves() {
         let grid = Grid::over(([-0.55; 3], [0.55; 3]), 50);
