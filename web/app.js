@@ -51,10 +51,14 @@ let input = null;
 
 function requestRender() {
   if (!viewer || frame) return;
-  frame = requestAnimationFrame(() => {
+  const draw = () => {
+    // A frame still on the GPU (seconds on a software adapter with a big cloud): wait for it
+    // rather than queue another behind it, and behind it a scene's tiles.
+    if (viewer.frame_in_flight) { frame = requestAnimationFrame(draw); return; }
     frame = 0;
     try { viewer.render(); } catch (e) { console.error(`render failed: ${e.message ?? e}`); }
-  });
+  };
+  frame = requestAnimationFrame(draw);
 }
 
 function fitCanvas() {
@@ -200,8 +204,12 @@ function stageText(p, opts) {
 // A scene's finished pieces (the worker's 'meshed' events), drawn while the other tiles run;
 // the result replaces them. Each piece goes to the viewer's GPU buffers as it comes and is not
 // kept here (a 5M-point room sends hundreds: gathering them for each redraw grew the page past a
-// gigabyte); the view is redrawn at most every PREVIEW_MS.
+// gigabyte); the view is redrawn at most every PREVIEW_MS, and at most PREVIEW_GPU_SHARE of the
+// time by the last frame's GPU time: the tiles run on the same GPU, and on a software adapter a
+// frame of a million points and the growing mesh takes seconds (redrawn after every tile, the 1M
+// room ran 27 s a tile in the page against 3.5 s with the points hidden).
 const PREVIEW_MS = 400;
+const PREVIEW_GPU_SHARE = 0.2;
 const preview = {
   timer: null,
   triangles: 0,
@@ -214,7 +222,7 @@ const preview = {
       return;
     }
     this.triangles += p.indices.length / 3;
-    this.timer ??= setTimeout(() => this.draw(), PREVIEW_MS);
+    this.timer ??= setTimeout(() => this.draw(), Math.max(PREVIEW_MS, viewer.frame_ms / PREVIEW_GPU_SHARE));
   },
   draw() {
     this.timer = null;

@@ -48,6 +48,17 @@ struct MeshUniform {
 /// instead of flickering with the back face's warning colour. A hole still shows the inside.
 const BACK_OFFSET: f32 = 0.004;
 
+/// How long the GPU took for the last frame, from its submission until the queue reported it
+/// done (a software adapter draws a million points in seconds, and a scene's tiles wait behind
+/// the frame in the same GPU process): the page spaces a scene's preview redraws by it and draws
+/// no frame while one is in flight. Atomics because wgpu's callback must be `Send` on native.
+#[derive(Default)]
+struct FrameClock {
+    /// Milliseconds (f64 bits) of the last finished frame; 0 before the first.
+    last_ms: std::sync::atomic::AtomicU64,
+    in_flight: std::sync::atomic::AtomicBool,
+}
+
 /// Orbit camera around a target: yaw/pitch in radians, distance along the view direction.
 struct Orbit {
     target: Vec3,
@@ -154,6 +165,7 @@ pub struct Viewer {
     show_wire: bool,
     drawn_points: usize,
     point_budget: usize,
+    frames: std::sync::Arc<FrameClock>,
 }
 
 #[wasm_bindgen]
@@ -273,6 +285,7 @@ impl Viewer {
             show_wire: false,
             drawn_points: 0,
             point_budget: POINT_BUDGET,
+            frames: Default::default(),
         })
     }
 
@@ -473,6 +486,18 @@ impl Viewer {
         self.draw(&view);
         self.gpu.queue.present(frame);
         Ok(())
+    }
+
+    /// Milliseconds the GPU took for the last frame drawn (0 before the first), see [`FrameClock`].
+    #[wasm_bindgen(getter)]
+    pub fn frame_ms(&self) -> f64 {
+        f64::from_bits(self.frames.last_ms.load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    /// Whether the last frame's GPU work is still under way: the page draws no other meanwhile.
+    #[wasm_bindgen(getter)]
+    pub fn frame_in_flight(&self) -> bool {
+        self.frames.in_flight.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Bytes of the GPU buffers the view holds now (uniforms, the cloud's and the mesh's vertex
@@ -694,6 +719,13 @@ impl Viewer {
             }
         }
         self.gpu.queue.submit([encoder.finish()]);
+        use std::sync::atomic::Ordering::Relaxed;
+        let (clock, submitted) = (self.frames.clone(), crate::gpu::now());
+        clock.in_flight.store(true, Relaxed);
+        self.gpu.queue.on_submitted_work_done(move || {
+            clock.last_ms.store((1e3 * (crate::gpu::now() - submitted)).to_bits(), Relaxed);
+            clock.in_flight.store(false, Relaxed);
+        });
     }
 }
 

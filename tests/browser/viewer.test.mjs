@@ -23,6 +23,9 @@ test('a PLY picked in the file input is parsed by wasm and drawn', { timeout: 18
     // The cloud really is on screen: an offscreen render of the same view covers pixels.
     const coverage = await page.evaluate(() => window.nkrrViewer.coverage());
     assert.ok(coverage > 0.01 && coverage < 0.9, `coverage ${coverage}`);
+    // The frame clock a scene's preview is spaced by (web/app.js): the GPU's time for the last
+    // frame, reported once its work is done.
+    await page.waitForFunction(() => window.nkrrViewer.frame_ms > 0 && !window.nkrrViewer.frame_in_flight, null, { timeout: 30_000 });
     await page.waitForTimeout(300);
     await page.screenshot({ path: path.join(ARTIFACTS, 'viewer-spot-3k.png') });
     assert.deepEqual(errors, []);
