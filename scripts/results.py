@@ -200,6 +200,102 @@ def hard_phase(work):
     return runs, spsr
 
 
+SCENES = [("room1", ["room"]), ("street1", ["street"])]
+SCENE_METHODS = [("nkrr", "nkrr in tiles (the network per tile)", ["--method", "network"]),
+                 ("cube", "nkrr in one cube (`--tiles off`)", ["--method", "network", "--tiles", "off"]),
+                 ("spsr", "screened Poisson (depth 10, 5 % trimmed)", None)]
+FORMATS_PY = ".venv-formats/bin/python"
+PEERS_PY = ".venv-peers/bin/python"
+
+
+def timed(cmd, log_path):
+    """Runs cmd under /usr/bin/time -v; returns (wall s, peak RSS MiB) and keeps its output."""
+    out, _ = sh(["/usr/bin/time", "-v"] + cmd)
+    open(log_path, "w").write(out.stdout + out.stderr)
+    wall = rss = None
+    for line in out.stderr.splitlines():
+        if "Elapsed (wall clock)" in line:
+            parts = [float(x) for x in line.rsplit(" ", 1)[1].split(":")]
+            wall = sum(v * 60 ** i for i, v in enumerate(reversed(parts)))
+        if "Maximum resident set size" in line:
+            rss = int(line.rsplit(" ", 1)[1]) / 1024
+    return wall, rss
+
+
+def scenes_phase(work, run):
+    """Issue 25's scenes: the generated 1M-point room and street (scripts/scenes.py, seed 1),
+    each reconstructed in tiles, in one cube and by screened Poisson (scripts/scene_spsr.py),
+    scored in metres by scripts/scene_metrics.py, and the tiled mesh's objects against the same
+    objects alone (scripts/scene_objects.py). Every step is skipped when its output is there
+    (WORK/scenes/); without `run`, only what is there is read. None when nothing is."""
+    d = os.path.join(work, "scenes")
+    if run:
+        os.makedirs(d, exist_ok=True)
+    out = {}
+    for name, kind in SCENES:
+        prefix = os.path.join(d, name)
+        if run and not os.path.exists(prefix + "-objects.json"):
+            sh([FORMATS_PY, "scripts/scenes.py"] + kind + ["--seed", "1", "--points", "1000000", "--no-e57", "--out", prefix])
+        rows = {}
+        for key, label, args in SCENE_METHODS:
+            mesh = f"{prefix}-{key}." + ("ply" if key == "spsr" else "glb")
+            scored = f"{prefix}-spsr-trim5.ply" if key == "spsr" else mesh
+            metrics, timing = f"{prefix}-{key}-metrics.json", f"{prefix}-{key}-time.json"
+            if run and not os.path.exists(timing):
+                if key == "spsr":
+                    cmd = [PEERS_PY, "scripts/scene_spsr.py", prefix + ".laz", "-o", mesh]
+                else:
+                    cmd = [NKRR, "reconstruct", prefix + ".laz", "-o", mesh] + args
+                wall, rss = timed(cmd, f"{prefix}-{key}.log")
+                json.dump({"wall_s": wall, "peak_rss_mib": rss}, open(timing, "w"))
+            if run and not os.path.exists(metrics):
+                o, _ = sh([FORMATS_PY, "scripts/scene_metrics.py", prefix + "-gt.ply", prefix + "-objects.json", scored])
+                open(metrics, "w").write(o.stdout.strip().splitlines()[-1])
+            if os.path.exists(metrics) and os.path.exists(timing):
+                rows[key] = {"label": label, **json.load(open(timing)), "metrics": json.load(open(metrics))}
+        objects = os.path.join(d, f"{name}-objects", "objects.json")
+        if run and not os.path.exists(objects) and os.path.exists(prefix + "-nkrr.glb"):
+            sh([FORMATS_PY, "scripts/scene_objects.py", prefix, prefix + "-nkrr.glb", "--out", os.path.dirname(objects)])
+        if rows:
+            out[name] = {"rows": rows, "objects": json.load(open(objects)) if os.path.exists(objects) else None}
+    return out or None
+
+
+def scenes_section(w, sc):
+    """The scenes' tables (metres), or where they are when the phase has not run."""
+    w("## Scenes (issue 25)\n")
+    if not sc:
+        w("Not run in this report (phase `scenes`); the measurements of the generated room and "
+          "street against screened Poisson and the one-cube path, with renders, are in "
+          "[scenes.md](scenes.md#measured).\n")
+        return
+    w("`scripts/scenes.py` (seed 1, 1M points, 3 mm noise, LAZ far from the origin), scored by "
+      "`scripts/scene_metrics.py` in metres; *scanned* restricts the ground truth to surface within "
+      "5 cm of an input point (what a scanner saw). Wall time and peak memory by `/usr/bin/time -v` "
+      "on this machine (not a benchmark). Renders and the reading of these numbers: "
+      "[scenes.md](scenes.md#measured). These scenes chose the tile rule (`TILE_POINTS`, the "
+      "street's cell cap): they are not held out.\n")
+    for name, s in sc.items():
+        w(f"### {name}\n")
+        t = ["| method | wall s | peak MiB | CD (cm) | F@1 / 2 / 5 cm | scanned: completeness, F@2 cm, CD (cm) | objects' completeness (scanned) |",
+             "|---|---|---|---|---|---|---|"]
+        for key, r in s["rows"].items():
+            m, sc_ = r["metrics"], r["metrics"]["scanned"]
+            f = m["fscore"]
+            t.append(f"| {r['label']} | {fmt(r['wall_s'], 0)} | {fmt(r['peak_rss_mib'], 0)} | {fmt(m['chamfer']['mean_cm'], 2)} | "
+                     f"{fmt(f['1cm']['f'], 3)} / {fmt(f['2cm']['f'], 3)} / {fmt(f['5cm']['f'], 3)} | "
+                     f"{fmt(sc_['completeness'], 3)}, {fmt(sc_['fscore']['2cm']['f'], 3)}, {fmt(sc_['chamfer']['mean_cm'], 2)} | "
+                     f"{fmt(sc_['objects_completeness_mean'], 2)} |")
+        w("\n".join(t) + "\n")
+        if s["objects"]:
+            o = ["| object | points | in the scene, CD (cm) | alone, CD (cm) | scene / alone |", "|---|---|---|---|---|"]
+            for r in s["objects"]:
+                o.append(f"| {r['object']} ({r['family']}) | {r['points']:,} | {fmt(r['scene_cd_cm'], 2)} | {fmt(r['alone_cd_cm'], 2)} | {fmt(r['ratio'], 2)} |")
+            w("Each object of the tiled mesh against the same object reconstructed alone from its own points "
+              "(`scripts/scene_objects.py`; the issue asks below 2):\n")
+            w("\n".join(o) + "\n")
+
+
 def mean_metrics(rows):
     return tuple(mean([r.get(k) for r in rows]) for k in ("cd1x100", "fscore", "nc"))
 
@@ -520,7 +616,7 @@ def compare_table(main_rows, rows, what, times=False):
     return "\n".join(lines), {k: max(v) if v else None for k, v in diffs.items()}
 
 
-def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, render_png, bench, levers=None, paper=None, hard=None, before_png=None, prior=None):
+def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, render_png, bench, levers=None, paper=None, hard=None, before_png=None, prior=None, scenes=None):
     runs = main["runs"]
     shapes = sorted({r["shape"] for r in runs})
     ipsr = ipsr_rows(os.path.join(work, "ipsr", "ipsr.jsonl"))
@@ -598,6 +694,10 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w("scripts/hard_clouds.py --spsr   # the harder clouds and screened Poisson on them")
     w("nkrr eval target/results/hard --sizes " + ",".join(HARD_KINDS)
       + " --methods " + HARD_METHODS)
+    if scenes:
+        w("scripts/scenes.py room|street --seed 1 --points 1000000 --no-e57 --out target/results/scenes/NAME")
+        w("nkrr reconstruct NAME.laz -o NAME-nkrr.glb --method network   # and --tiles off; scripts/scene_spsr.py NAME.laz -o NAME-spsr.ply")
+        w("scripts/scene_metrics.py NAME-gt.ply NAME-objects.json MESH; scripts/scene_objects.py NAME NAME-nkrr.glb   # the scenes")
     if prior:
         w(f"nkrr eval target/results/data --sizes {','.join(SIZES)} --methods network,nkrr --weights {prior['other']}")
         w(f"nkrr eval target/results/hard --sizes {','.join(HARD_KINDS)} --methods network,nkrr --weights {prior['other']}")
@@ -831,6 +931,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
         w(f"{before_png[1]} at 500 points, where nkrr was furthest behind the network with the paper's method: "
           "rows ground truth, the network, the paper's method (`nkrr-paper`), nkrr now.\n")
         w(f"![before and after](img/{os.path.basename(before_png[0])})\n")
+    scenes_section(w, scenes)
     open(os.environ.get("RESULTS_MD", "docs/results.md"), "w").write("\n".join(L) + "\n")
     log("wrote " + os.environ.get("RESULTS_MD", "docs/results.md"))
 
@@ -879,19 +980,20 @@ def main():
     ap.add_argument("--render-shapes", default="stanford-bunny,fandisk")
     ap.add_argument("--other-prior", default="training/prior-v2.safetensors",
                     help="lever 6: the prior compared with the shipped one (phase prior)")
-    ap.add_argument("--phases", default="main,spsr,rerun,scaling,ablations,levers,hard,prior,render,bench,report",
+    ap.add_argument("--phases", default="main,spsr,rerun,scaling,ablations,levers,hard,prior,render,bench,scenes,report",
                     help="phases to run (others are read from WORK if there)")
     a = ap.parse_args()
     work = a.work
     redo = set(a.redo.split(",")) - {""}
     if a.fresh:
-        redo = {"main", "spsr", "rerun", "scaling", "ablations", "levers", "hard", "prior", "render", "bench"}
+        redo = {"main", "spsr", "rerun", "scaling", "ablations", "levers", "hard", "prior", "render", "bench", "scenes"}
     files = {"main": ["main.json", "main.wall"], "spsr": ["spsr"],
              "rerun": ["rerun.json", "rerun.wall"], "scaling": ["scaling.jsonl"],
              "ablations": ["ablations.json", "ablations.wall"], "bench": ["bench"],
              "levers": ["levers.json", "levers.wall", "levers-field.json", "levers-field.wall", "paper.json", "paper.wall"],
              "hard": ["hard-eval.json", "hard-eval.wall"],
-             "prior": ["prior.json", "prior.wall", "prior-hard.json", "prior-hard.wall", "prior-compare.json"]}
+             "prior": ["prior.json", "prior.wall", "prior-hard.json", "prior-hard.wall", "prior-compare.json"],
+             "scenes": ["scenes"]}
     for p in redo:
         for f in files.get(p, []):
             q = os.path.join(work, f)
@@ -933,6 +1035,7 @@ def main():
     prior = None
     if "prior" in phases or ("report" in phases and os.path.exists(os.path.join(work, "prior-compare.json"))):
         prior = prior_phase(work, a.other_prior)
+    scenes = scenes_phase(work, run="scenes" in phases)
     if "report" in phases:
         abl = ablations_phase(work, abl_shapes, run=False)
         if abl:
@@ -940,7 +1043,7 @@ def main():
         report(work, load_eval(os.path.join(work, "main")), spsr_phase(work),
                load_eval(os.path.join(work, "rerun")), seeds_phase(work), scaling_phase(work, a.scale_nkrr_max),
                abl, abl_shapes, a.scale_nkrr_max, render_phase(work, a.render_shapes.split(","), "3k"),
-               bench_phase(work, run=False), levers, paper, hard, before, prior)
+               bench_phase(work, run=False), levers, paper, hard, before, prior, scenes)
 
 
 def before_render(work, paper):

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Generates docs/results.md and docs/img/results-*.png (nkrr vs the network vs screened Poisson on
 # the eval clouds at 500 / 3k / 10k points, ablations at 3k, a re-run check, time and memory vs
-# cloud size) on this machine, in one command:
+# cloud size, and the generated room and street in tiles against screened Poisson) on this machine, in one command:
 #
 #     scripts/results.sh [results.py options, e.g. --fresh, --redo scaling, --ablation-shapes A,B]
 #
