@@ -256,8 +256,15 @@ def scenes_phase(work, run):
         objects = os.path.join(d, f"{name}-objects", "objects.json")
         if run and not os.path.exists(objects) and os.path.exists(prefix + "-nkrr.glb"):
             sh([FORMATS_PY, "scripts/scene_objects.py", prefix, prefix + "-nkrr.glb", "--out", os.path.dirname(objects)])
+        # The street is open to the sky: scripts/render.py's views show it whole (z is up, so its
+        # "front" looks down on it). The room is closed: its render (a cut at 2.2 m) is scenes.md's.
+        png = os.path.join(IMG, f"scene-{name}.png")
+        meshes = [prefix + "-gt.ply", prefix + "-nkrr.glb", prefix + "-spsr-trim5.ply"]
+        if run and name == "street1" and not os.path.exists(png) and all(map(os.path.exists, meshes)):
+            sh([".venv/bin/python", "scripts/render.py"] + meshes + ["-o", png, "--size", "300", "--samples", "600000"])
         if rows:
-            out[name] = {"rows": rows, "objects": json.load(open(objects)) if os.path.exists(objects) else None}
+            out[name] = {"rows": rows, "objects": json.load(open(objects)) if os.path.exists(objects) else None,
+                         "png": png if name == "street1" and os.path.exists(png) else None}
     return out or None
 
 
@@ -287,6 +294,10 @@ def scenes_section(w, sc):
                      f"{fmt(sc_['completeness'], 3)}, {fmt(sc_['fscore']['2cm']['f'], 3)}, {fmt(sc_['chamfer']['mean_cm'], 2)} | "
                      f"{fmt(sc_['objects_completeness_mean'], 2)} |")
         w("\n".join(t) + "\n")
+        if s.get("png"):
+            w(f"![{name}: rows ground truth, nkrr in tiles, screened Poisson; z is up, so the first view looks down](img/{os.path.basename(s['png'])})\n")
+        elif name == "room1":
+            w("![room1, cut at 2.2 m: ground truth; nkrr in tiles; nkrr in one cube; screened Poisson (top and 3/4 views; made 2026-12-02, before the 6k tile rule)](img/scene-room1.png)\n")
         if s["objects"]:
             o = ["| object | points | in the scene, CD (cm) | alone, CD (cm) | scene / alone |", "|---|---|---|---|---|"]
             for r in s["objects"]:
