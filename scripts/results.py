@@ -208,18 +208,16 @@ FORMATS_PY = ".venv-formats/bin/python"
 PEERS_PY = ".venv-peers/bin/python"
 
 
-def timed(cmd, log_path):
-    """Runs cmd under /usr/bin/time -v; returns (wall s, peak RSS MiB) and keeps its output."""
+def timed(cmd):
+    """Runs cmd under /usr/bin/time -v: its output, the wall seconds and the peak RSS in MiB."""
     out, _ = sh(["/usr/bin/time", "-v"] + cmd)
-    open(log_path, "w").write(out.stdout + out.stderr)
-    wall = rss = None
-    for line in out.stderr.splitlines():
-        if "Elapsed (wall clock)" in line:
-            parts = [float(x) for x in line.rsplit(" ", 1)[1].split(":")]
-            wall = sum(v * 60 ** i for i, v in enumerate(reversed(parts)))
-        if "Maximum resident set size" in line:
-            rss = int(line.rsplit(" ", 1)[1]) / 1024
-    return wall, rss
+    err = out.stderr + out.stdout
+    rss_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", err).group(1))
+    el = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([0-9:.]+)", err).group(1)
+    secs = 0.0
+    for part in el.split(":"):
+        secs = secs * 60 + float(part)
+    return out, secs, rss_kb / 1024
 
 
 def scenes_phase(work, run):
@@ -246,7 +244,8 @@ def scenes_phase(work, run):
                     cmd = [PEERS_PY, "scripts/scene_spsr.py", prefix + ".laz", "-o", mesh]
                 else:
                     cmd = [NKRR, "reconstruct", prefix + ".laz", "-o", mesh] + args
-                wall, rss = timed(cmd, f"{prefix}-{key}.log")
+                o, wall, rss = timed(cmd)
+                open(f"{prefix}-{key}.log", "w").write(o.stdout + o.stderr)
                 json.dump({"wall_s": wall, "peak_rss_mib": rss}, open(timing, "w"))
             if run and not os.path.exists(metrics):
                 o, _ = sh([FORMATS_PY, "scripts/scene_metrics.py", prefix + "-gt.ply", prefix + "-objects.json", scored])
@@ -392,18 +391,12 @@ def scaling_phase(work, nkrr_max):
                 break
             cloud = os.path.join(work, "data", "scale", f"scale-{n}.ply")
             mesh = os.path.join(work, "scale-out.glb")
-            out, _ = sh(["/usr/bin/time", "-v", NKRR, "reconstruct", cloud, "-o", mesh,
-                         "--method", method])
+            out, secs, rss_mib = timed([NKRR, "reconstruct", cloud, "-o", mesh, "--method", method])
             err = out.stderr + out.stdout
-            rss_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", err).group(1))
-            el = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([0-9:.]+)", err).group(1)
-            secs = 0.0
-            for part in el.split(":"):
-                secs = secs * 60 + float(part)
             summary = [x for x in err.splitlines() if "total" in x and "watertight" in x]
             stages = {k.strip(): float(v) for k, v in STAGE_RE.findall(summary[-1].split(";", 1)[1])} if summary else {}
             r = {"method": method, "points": n, "wall_s": round(secs, 2),
-                 "peak_rss_mb": round(rss_kb / 1024, 1), "stages": stages,
+                 "peak_rss_mb": round(rss_mib, 1), "stages": stages,
                  "summary": summary[-1] if summary else ""}
             f.write(json.dumps(r) + "\n")
             f.flush()
