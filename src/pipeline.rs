@@ -280,7 +280,7 @@ impl Engine {
 
         let mut mesh = extraction.mesh;
         // Fitted and trimmed in the unit cube, against the points the network saw.
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, &mut notices, &mut timings);
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, None, &mut notices, &mut timings);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }
@@ -293,7 +293,7 @@ impl Engine {
         // normalisation makes the scale irrelevant to it), and a similarity keeps normals.
         let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
         (progress.borrow_mut())(&Stage::Done);
-        let crate::mesh::finish::Finished { fit, trim, simplify } = finished;
+        let crate::mesh::finish::Finished { fit, trim, simplify, .. } = finished;
         Ok(Attempt::Done(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None }))
     }
 }

@@ -448,7 +448,10 @@ pub async fn reconstruct(
     // is a small share of a street, and must stay.
     let share = |s: f64| s * (TILE_POINTS as f64 / cloud.len().max(1) as f64).min(1.0);
     let finish = Settings { min_support: settings.min_support.map(share), ..settings.clone() };
-    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, &mut notices, &mut timings);
+    // Two layers of a sheet closer than half a cell are one surface: the grid cannot mesh a
+    // slab that thin as two.
+    let sheet_gap = (0.5 * tiles.cell) as f32;
+    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, Some(sheet_gap), &mut notices, &mut timings);
     if settings.colors && cloud.colors.is_some() {
         crate::mesh::colour::transfer(&mut mesh, cloud, crate::mesh::colour::DEFAULT_K);
     }

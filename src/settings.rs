@@ -126,6 +126,7 @@ pub struct Settings {
     pub tiles: Tiles,
     pub surface: Surface,
     pub detail: Option<f32>,
+    pub one_layer: bool,
 }
 
 impl Settings {
@@ -189,6 +190,7 @@ impl Default for Settings {
             tiles: Tiles::Auto,
             surface: Surface::Auto,
             detail: None,
+            one_layer: false,
         };
         for def in TABLE {
             (def.set)(&mut s, def.default);
@@ -544,6 +546,18 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| from_opt(s.detail),
         set: |s, v| s.detail = opt_f32(v),
+        ..BASE
+    },
+    Setting {
+        key: "oneLayer",
+        flag: "--two-layers",
+        label: "One layer per scanned sheet",
+        help: "in a tiled scene, a wall or floor scanned from one side comes out of the object prior as two coincident layers; keep the one facing the scan (off keeps both)",
+        kind: Kind::Switch,
+        default: Value::Bool(true),
+        advanced: true,
+        get: |s| Value::Bool(s.one_layer),
+        set: |s, v| s.one_layer = flag(v),
         ..BASE
     },
     Setting {

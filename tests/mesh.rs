@@ -676,3 +676,137 @@ fn sphere_glb_passes_khronos_validator() {
     assert!(text.contains("TOTAL errors=0 warnings=0"), "{text}");
     assert!(text.contains("mc_sphere_128.glb: errors=0 warnings=0"), "{text}");
 }
+
+// ---- One layer per scanned sheet (src/mesh/sheets.rs) ------------------------------------
+
+/// A closed box `[0, w] × [0, w] × [z0, z1]` as a triangle mesh, `n` quads along each side of
+/// its top and bottom (shifted by `shift` quads on the bottom, so the two layers are meshed
+/// apart, as marching cubes meshes the two faces of a slab) and one quad per rim side; outward
+/// normals.
+fn slab(w: f32, n: usize, z0: f32, z1: f32, shift: f32) -> nkrr::mesh::Mesh {
+    let mut m = nkrr::mesh::Mesh::default();
+    let h = w / n as f32;
+    let mut grid = |z: f32, up: bool, off: f32| {
+        let base = m.positions.len() as u32;
+        for j in 0..=n {
+            for i in 0..=n {
+                let x = ((i as f32 + off) * h).clamp(0.0, w);
+                let y = ((j as f32 + off) * h).clamp(0.0, w);
+                let (x, y) = (if i == 0 { 0.0 } else if i == n { w } else { x }, if j == 0 { 0.0 } else if j == n { w } else { y });
+                m.positions.push([x, y, z]);
+            }
+        }
+        let v = |i: usize, j: usize| base + (j * (n + 1) + i) as u32;
+        for j in 0..n {
+            for i in 0..n {
+                let (a, b, c, d) = (v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1));
+                if up {
+                    m.indices.extend([a, b, c, a, c, d]);
+                } else {
+                    m.indices.extend([a, c, b, a, d, c]);
+                }
+            }
+        }
+    };
+    grid(z1, true, 0.0);
+    grid(z0, false, shift);
+    // The rim: four thin quads from the bottom's border to the top's (its own vertices).
+    for (p, q) in [([0.0, 0.0], [w, 0.0]), ([w, 0.0], [w, w]), ([w, w], [0.0, w]), ([0.0, w], [0.0, 0.0])] {
+        let b = m.positions.len() as u32;
+        m.positions.extend([[p[0], p[1], z0], [q[0], q[1], z0], [q[0], q[1], z1], [p[0], p[1], z1]]);
+        m.indices.extend([b, b + 1, b + 2, b, b + 2, b + 3]);
+    }
+    m.compute_vertex_normals();
+    m
+}
+
+/// Points on the sheet's plane and, to put the scan above it, a few on a floating square.
+fn sheet_points(w: f32, z: f32) -> Vec<[f32; 3]> {
+    let mut pts = Vec::new();
+    for j in 0..40 {
+        for i in 0..40 {
+            pts.push([(i as f32 + 0.5) * w / 40.0, (j as f32 + 0.5) * w / 40.0, z]);
+        }
+    }
+    for j in 0..20 {
+        for i in 0..20 {
+            pts.push([(i as f32 + 0.5) * w / 20.0, (j as f32 + 0.5) * w / 20.0, z + w]);
+        }
+    }
+    pts
+}
+
+fn facing(m: &nkrr::mesh::Mesh) -> (usize, usize) {
+    let (mut up, mut down) = (0, 0);
+    for t in m.indices.chunks_exact(3) {
+        let [a, b, c] = [t[0], t[1], t[2]].map(|i| m.positions[i as usize]);
+        let nz = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+        if nz > 0.0 {
+            up += 1;
+        } else if nz < 0.0 {
+            down += 1;
+        }
+    }
+    (up, down)
+}
+
+#[test]
+fn a_sheet_s_two_coincident_layers_become_the_one_facing_the_scan() {
+    // Two layers 1 mm apart (what the last fit leaves of the prior's slab), meshed apart.
+    let mut m = slab(1.0, 20, 0.0, 0.001, 0.37);
+    let (up, down) = facing(&m);
+    assert_eq!((up, down), (800, 800));
+    let r = nkrr::mesh::sheets::single_layer(&mut m, &sheet_points(1.0, 0.0005), 0.01);
+    assert!(r.paired >= 1500, "{r:?}");
+    assert_eq!(r.removed, 800, "{r:?}");
+    // The top layer (facing the points' centroid, above the sheet) stays, whole; the rim too.
+    let (up, down) = facing(&m);
+    assert_eq!((up, down), (800, 0));
+    assert_eq!(m.triangle_count(), 800 + 8);
+    assert_eq!(m.normals.len(), m.positions.len());
+    assert!(r.notice().unwrap().contains("800 triangles dropped"));
+    // Where the top layer has a hole (3 x 3 quads), the bottom's triangles there have no twin:
+    // they go with the rest of their layer, which they join without a bend.
+    let mut m = slab(1.0, 20, 0.0, 0.001, 0.37);
+    let hole = |t: &[u32]| t.iter().all(|&i| {
+        let p = m.positions[i as usize];
+        p[2] > 0.0005 && (0.4..=0.55).contains(&p[0]) && (0.4..=0.55).contains(&p[1])
+    });
+    let kept: Vec<bool> = m.indices.chunks_exact(3).map(|t| !hole(t)).collect();
+    assert_eq!(kept.iter().filter(|&&k| !k).count(), 18);
+    nkrr::mesh::retain_triangles(&mut m, &kept);
+    let r = nkrr::mesh::sheets::single_layer(&mut m, &sheet_points(1.0, 0.0005), 0.01);
+    assert_eq!(facing(&m), (782, 0), "{r:?}");
+    // With the scan below the sheet, the bottom layer is the one kept.
+    let mut m = slab(1.0, 20, 0.0, 0.001, 0.37);
+    let below: Vec<[f32; 3]> = sheet_points(1.0, 0.0005).into_iter().map(|p| [p[0], p[1], 0.001 - p[2]]).collect();
+    nkrr::mesh::sheets::single_layer(&mut m, &below, 0.01);
+    assert_eq!(facing(&m), (0, 800));
+}
+
+#[test]
+fn a_thin_part_thicker_than_the_gap_keeps_both_faces() {
+    // A board 2 cm thick, both faces scanned: two surfaces, not one sheet.
+    let mut m = slab(1.0, 20, 0.0, 0.02, 0.0);
+    let before = m.clone();
+    let r = nkrr::mesh::sheets::single_layer(&mut m, &sheet_points(1.0, 0.01), 0.01);
+    assert_eq!(r.removed, 0, "{r:?}");
+    assert_eq!(m, before);
+    // A closed object resting on a sheet touches it only in part: it keeps its surface but for
+    // the few triangles that lie on the sheet, facing away from the scan.
+    let mut scene = slab(1.0, 40, 0.0, 0.001, 0.37);
+    let ball = run(sphere_sdf([0.5, 0.5, 0.301], 0.3), &opts(64, 32)).mesh;
+    let (base, ball_triangles) = (scene.positions.len() as u32, ball.triangle_count());
+    scene.positions.extend(&ball.positions);
+    scene.indices.extend(ball.indices.iter().map(|&i| i + base));
+    scene.compute_vertex_normals();
+    let r = nkrr::mesh::sheets::single_layer(&mut scene, &sheet_points(1.0, 0.0005), 0.01);
+    let left = scene.indices.chunks_exact(3).filter(|t| scene.positions[t[0] as usize][2] > 0.002).count();
+    assert!(left as f64 > 0.97 * ball_triangles as f64, "{left} of the ball's {ball_triangles} triangles left; {r:?}");
+    // A closed object far from any twin is untouched as well.
+    let mut s = run(sphere_sdf([0.0; 3], 0.3), &opts(64, 32)).mesh;
+    let before = s.clone();
+    let r = nkrr::mesh::sheets::single_layer(&mut s, &[[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]], 0.01);
+    assert_eq!((r.paired, r.removed), (0, 0));
+    assert_eq!(s, before);
+}

@@ -362,6 +362,7 @@ function onDone(r) {
   requestRender();
   $('progress-bar').value = 1;
   $('stage').textContent = `Done in ${secs(elapsed)}`;
+  mark('heap', String(r.stats.heapBytes ?? ''));
   resultPanel.set({
     name, glb: r.glb, stats: r.stats, elapsed, points: input?.points,
     mesh: { positions: r.positions, normals: r.normals, indices: r.indices, colors: r.colors, translation: r.translation },
@@ -371,8 +372,12 @@ function onDone(r) {
 }
 
 function applyVisibility() {
+  const wire = $('show-wire').checked;
   viewer?.set_visible($('show-cloud').checked, $('show-mesh').checked);
-  viewer?.set_wireframe($('show-wire').checked);
+  viewer?.set_wireframe(wire);
+  // The viewer builds a mesh's wireframe only while it is shown (a sort of every edge, which a
+  // big scene's mesh would hold in the page for a view few use): the first time, set it again.
+  if (wire && viewer?.has_mesh && !viewer.has_wireframe && resultPanel.result) resultPanel.showMesh();
   requestRender();
 }
 

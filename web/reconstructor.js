@@ -22,6 +22,11 @@
 // reaches them).
 
 const WORKER_URL = new URL('./worker.js', import.meta.url);
+// A worker whose wasm memory grew past this in a run is ended once it has answered: wasm memory
+// never shrinks, and a big scan's (the whole scene's mesh, its GLB, the last fit's tree) would
+// stay held by the tab until it closes. The next run starts a new worker and GPU engine (seconds);
+// clouds of an object's size stay well under it and keep theirs.
+const RECYCLE_HEAP_BYTES = 256 * 2 ** 20;
 
 export class Reconstructor {
   /**
@@ -161,7 +166,14 @@ export class Reconstructor {
         try { job.onProgress?.(p); } catch (e) { console.error(e); }
         break;
       }
-      case 'done': job.resolve(data.result); break;
+      case 'done':
+        if (data.result?.stats?.heapBytes > RECYCLE_HEAP_BYTES) {
+          this.worker.terminate();
+          this.worker = null;
+          this.onstatechange?.();
+        }
+        job.resolve(data.result);
+        break;
       case 'cancelled': job.reject(new DOMException('cancelled', 'AbortError')); break;
       case 'error':
         // A lost or failing device: the next run gets a fresh worker and device.

@@ -87,6 +87,15 @@ export class ResultPanel {
     $('r-watertight').textContent = removed > 0 ? 'no (trimmed)' : closed ? 'yes' : 'no';
     $('r-watertight').className = closed ? 'yes' : 'no';
     if (initial && f === 0) return; // the viewer shows the whole mesh already
+    this.showMesh();
+  }
+
+  /** Puts the result's triangles (trimmed or not) in the viewer; again when the wireframe is
+   *  first shown, whose edges the viewer builds only then. */
+  showMesh() {
+    const result = this.result;
+    if (!result) return;
+    const m = result.mesh;
     try {
       this.viewer.set_mesh(m.positions, m.normals, result.indices, m.colors?.length ? m.colors : undefined);
     } catch (e) {

@@ -9,6 +9,7 @@
 //   worker → page  { type: 'ready', adapter }           the engine is up (answer to 'prepare')
 //                  { type: 'progress', id, stage, … }   see `reconstruct` in src/web/api.rs
 //                  { type: 'done', id, result }          glb, positions, normals, indices, colors, translation, stats
+//                                                        (stats.heapBytes: this worker's wasm memory now)
 //                  { type: 'cancelled', id }
 //                  { type: 'error', id?, name, message }
 //
@@ -43,6 +44,9 @@ async function run({ id, bytes, options, cancelFlag }) {
     const data = new Uint8Array(bytes instanceof Blob ? await bytes.arrayBuffer() : bytes);
     if (stopped()) { postMessage({ type: 'cancelled', id }); return; }
     const r = await reconstruct(data, options ?? {}, onProgress);
+    // The wasm memory keeps its high-water mark for the worker's life: the page replaces a
+    // worker that a big scan grew (web/reconstructor.js).
+    r.stats.heapBytes = (await ready).memory.buffer.byteLength;
     const transfer = [r.glb.buffer, r.positions.buffer, r.normals.buffer, r.indices.buffer, r.colors.buffer];
     postMessage({ type: 'done', id, result: r }, transfer);
   } catch (e) {

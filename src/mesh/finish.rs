@@ -1,8 +1,10 @@
 //! The finishing stage, in the network's unit cube against the points it saw: components the
-//! points do not support go, then the last fit to the points, the trim of what was never
-//! scanned and the simplification, each when the settings ask for it (the plan's "finish").
+//! points do not support go, then the last fit to the points, a scene's sheets to one layer, the
+//! trim of what was never scanned and the simplification, each when the settings ask for it
+//! (the plan's "finish").
 
 use super::fit::{fit_cloud, FitReport};
+use super::sheets::{single_layer, SheetReport};
 use super::simplify::{simplify, SimplifyReport, Target};
 use super::trim::{trim, TrimReport};
 use super::types::Mesh;
@@ -12,13 +14,22 @@ use crate::settings::Settings;
 /// What each finishing step did (None: not asked for).
 pub struct Finished {
     pub fit: Option<FitReport>,
+    pub sheets: Option<SheetReport>,
     pub trim: Option<TrimReport>,
     pub simplify: Option<SimplifyReport>,
 }
 
 /// Finishes `mesh` against `points` as `settings` ask, adding what it says to `notices` and
-/// each step's seconds to `timings`.
-pub fn finish(mesh: &mut Mesh, points: &[[f32; 3]], settings: &Settings, notices: &mut Vec<String>, timings: &mut Vec<(&'static str, f64)>) -> Finished {
+/// each step's seconds to `timings`. `sheet_gap`: a scene's (with [`Settings::one_layer`]), the
+/// most two coincident layers lie apart after the fit ([`single_layer`]); objects pass None.
+pub fn finish(
+    mesh: &mut Mesh,
+    points: &[[f32; 3]],
+    settings: &Settings,
+    sheet_gap: Option<f32>,
+    notices: &mut Vec<String>,
+    timings: &mut Vec<(&'static str, f64)>,
+) -> Finished {
     if let Some(share) = settings.min_support {
         let r = super::remove_unsupported_components(mesh, points, share as f32);
         notices.extend(r.unsupported_notice(share));
@@ -27,6 +38,14 @@ pub fn finish(mesh: &mut Mesh, points: &[[f32; 3]], settings: &Settings, notices
         let t = now();
         let r = fit_cloud(mesh, points, settings.fit_noise);
         timings.push(("fit", now() - t));
+        notices.extend(r.notice());
+        r
+    });
+    // After the fit, which lays both layers of a sheet on its points.
+    let sheets = sheet_gap.filter(|_| settings.one_layer).map(|gap| {
+        let t = now();
+        let r = single_layer(mesh, points, gap);
+        timings.push(("one layer", now() - t));
         notices.extend(r.notice());
         r
     });
@@ -47,5 +66,5 @@ pub fn finish(mesh: &mut Mesh, points: &[[f32; 3]], settings: &Settings, notices
         notices.push(r.notice());
         r
     });
-    Finished { fit, trim, simplify }
+    Finished { fit, sheets, trim, simplify }
 }

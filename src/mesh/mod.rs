@@ -10,6 +10,7 @@ pub mod fit;
 pub mod marching_cubes;
 pub mod marching_cubes_gpu;
 pub mod refine;
+pub mod sheets;
 pub mod simplify;
 pub mod tables;
 pub mod trim;

@@ -4,6 +4,7 @@
 //! costs nothing.
 
 use glam::{Mat4, Vec3};
+use js_sys::{Float32Array, Uint32Array, Uint8Array};
 use wasm_bindgen::prelude::*;
 use wgpu::util::DeviceExt;
 
@@ -97,11 +98,26 @@ struct MeshDraw {
     colors: wgpu::Buffer,
     indices: wgpu::Buffer,
     index_count: u32,
-    /// Each undirected edge once, as a line list, for the wireframe.
-    edges: wgpu::Buffer,
-    edge_index_count: u32,
+    /// Each undirected edge once, as a line list, for the wireframe; `None` until the wireframe
+    /// is shown with this mesh (a sort of every edge, which a big scene's mesh would pay for
+    /// nothing).
+    edges: Option<(wgpu::Buffer, u32)>,
     center: Vec3,
     radius: f32,
+}
+
+impl Drop for MeshDraw {
+    /// Frees the GPU memory now: wgpu's web backend only drops its handle, which leaves the
+    /// buffer to the garbage collector, and a scene's result replacing its pieces would hold
+    /// both in the GPU process for a while. Work already submitted still completes.
+    fn drop(&mut self) {
+        for b in [&self.positions, &self.normals, &self.colors, &self.indices] {
+            b.destroy();
+        }
+        if let Some((e, _)) = &self.edges {
+            e.destroy();
+        }
+    }
 }
 
 impl MeshDraw {
@@ -368,18 +384,22 @@ impl Viewer {
     /// inconsistent lengths or an index out of range.
     /// `colors` (optional): RGBA8 per vertex, the mesh's COLOR_0; without them the mesh is
     /// drawn in the viewer's base colour.
-    /// `wireframe` (optional, default true): whether to build the wireframe's edge list, a sort
-    /// of every edge; a preview redrawn often (a scene's pieces) skips it and shows no wireframe.
+    /// `wireframe` (optional, default: whether the wireframe is shown now): whether to build the
+    /// wireframe's edge list, a sort of every edge held in the page's memory while it is built.
+    /// The arrays are read a chunk at a time into the GPU's buffers: the page's wasm memory,
+    /// which never shrinks, does not grow by the mesh (a big scene's is hundreds of MB).
     pub fn set_mesh(
         &mut self,
-        positions: &[f32],
-        normals: &[f32],
-        indices: &[u32],
-        colors: Option<Vec<u8>>,
+        positions: &Float32Array,
+        normals: &Float32Array,
+        indices: &Uint32Array,
+        colors: Option<Uint8Array>,
         wireframe: Option<bool>,
     ) -> Result<(), JsError> {
-        let piece = self.upload(positions, normals, indices, colors, wireframe.unwrap_or(true))?;
         let had_content = self.cloud.is_some() || !self.mesh.is_empty();
+        // The old mesh's buffers go first, so the GPU never holds both.
+        self.mesh.clear();
+        let piece = self.upload(positions, normals, indices, colors.as_ref(), wireframe.unwrap_or(self.show_wire))?;
         self.mesh = piece.into_iter().collect();
         if !had_content {
             self.fit();
@@ -392,13 +412,20 @@ impl Viewer {
     /// wireframe. Each piece goes to the GPU once, as it comes: nothing is gathered or copied
     /// again on the page (a 5M-point room sends hundreds of pieces); [`Viewer::set_mesh`] or
     /// [`Viewer::clear_mesh`] replaces them all.
-    pub fn add_mesh_piece(&mut self, positions: &[f32], normals: &[f32], indices: &[u32]) -> Result<(), JsError> {
+    pub fn add_mesh_piece(&mut self, positions: &Float32Array, normals: &Float32Array, indices: &Uint32Array) -> Result<(), JsError> {
         let had_content = self.cloud.is_some() || !self.mesh.is_empty();
         self.mesh.extend(self.upload(positions, normals, indices, None, false)?);
         if !had_content {
             self.fit();
         }
         Ok(())
+    }
+
+    /// Whether the mesh shown has its wireframe's edges (see `set_mesh`'s `wireframe`): the page
+    /// sets the mesh again, with them, when the wireframe is first shown.
+    #[wasm_bindgen(getter)]
+    pub fn has_wireframe(&self) -> bool {
+        !self.mesh.is_empty() && self.mesh.iter().all(|m| m.edges.is_some())
     }
 
     /// Removes the mesh.
@@ -509,7 +536,8 @@ impl Viewer {
             b += c.positions.size() + c.colors.size();
         }
         for m in &self.mesh {
-            b += m.positions.size() + m.normals.size() + m.colors.size() + m.indices.size() + m.edges.size();
+            b += m.positions.size() + m.normals.size() + m.colors.size() + m.indices.size();
+            b += m.edges.as_ref().map_or(0, |(e, _)| e.size());
         }
         b as f64
     }
@@ -592,62 +620,110 @@ impl Viewer {
 
 impl Viewer {
     /// Checks a mesh's arrays (see [`Viewer::set_mesh`]) and uploads them; `None` when empty.
-    fn upload(&self, positions: &[f32], normals: &[f32], indices: &[u32], colors: Option<Vec<u8>>, wireframe: bool) -> Result<Option<MeshDraw>, JsError> {
-        let n = positions.len() / 3;
-        let colors = colors.filter(|c| !c.is_empty()).unwrap_or_else(|| vec![0; 4 * n]);
-        if colors.len() != 4 * n {
-            return Err(JsError::new(&format!("set_mesh: {} colour bytes for {n} vertices (4 per vertex)", colors.len())));
+    fn upload(
+        &self,
+        positions: &Float32Array,
+        normals: &Float32Array,
+        indices: &Uint32Array,
+        colors: Option<&Uint8Array>,
+        wireframe: bool,
+    ) -> Result<Option<MeshDraw>, JsError> {
+        let (floats, index_len) = (positions.length(), indices.length());
+        let n = floats / 3;
+        let colors = colors.filter(|c| c.length() > 0);
+        if let Some(c) = colors {
+            if c.length() != 4 * n {
+                return Err(JsError::new(&format!("set_mesh: {} colour bytes for {n} vertices (4 per vertex)", c.length())));
+            }
         }
-        if positions.len() % 3 != 0 || normals.len() != positions.len() {
+        if floats % 3 != 0 || normals.length() != floats {
             return Err(JsError::new(&format!(
-                "set_mesh: {} position and {} normal floats (both must be 3 per vertex)",
-                positions.len(),
-                normals.len()
+                "set_mesh: {floats} position and {} normal floats (both must be 3 per vertex)",
+                normals.length()
             )));
         }
-        if indices.len() % 3 != 0 {
-            return Err(JsError::new(&format!("set_mesh: {} indices is not a multiple of 3", indices.len())));
+        if index_len % 3 != 0 {
+            return Err(JsError::new(&format!("set_mesh: {index_len} indices is not a multiple of 3")));
         }
-        if let Some(&i) = indices.iter().find(|&&i| i as usize >= n) {
-            return Err(JsError::new(&format!("set_mesh: index {i} is out of range ({n} vertices)")));
-        }
-        if n == 0 || indices.is_empty() {
+        if n == 0 || index_len == 0 {
             return Ok(None);
         }
         let max = self.gpu.limits.max_buffer_size;
-        if (positions.len() as u64) * 4 > max || (indices.len() as u64) * 4 > max {
+        if (floats as u64) * 4 > max || (index_len as u64) * 4 > max {
             return Err(JsError::new(&format!(
                 "the mesh ({n} vertices, {} triangles) is too large to show on this GPU (buffers up to {} MiB); \
                  download it instead",
-                indices.len() / 3,
+                index_len / 3,
                 max >> 20
             )));
         }
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for p in positions.chunks_exact(3) {
-            let p = Vec3::new(p[0], p[1], p[2]);
-            if p.is_finite() {
-                lo = lo.min(p);
-                hi = hi.max(p);
+        let device = &self.gpu.device;
+        // Zero-filled (WebGPU clears new buffers): a mesh without colours writes none.
+        let buffer = |label: &str, bytes: u32, usage: wgpu::BufferUsages| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes as u64,
+                usage: usage | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let queue = &self.gpu.queue;
+        let index_buffer = buffer("mesh indices", 4 * index_len, wgpu::BufferUsages::INDEX);
+        let mut out_of_range = None;
+        in_chunks(index_len, |a, b, dst| indices.subarray(a, b).copy_to(dst), |start, chunk: &[u32]| {
+            if out_of_range.is_none() {
+                out_of_range = chunk.iter().find(|&&i| i >= n).copied();
             }
+            queue.write_buffer(&index_buffer, 4 * start as u64, bytemuck::cast_slice(chunk));
+        });
+        if let Some(i) = out_of_range {
+            index_buffer.destroy();
+            return Err(JsError::new(&format!("set_mesh: index {i} is out of range ({n} vertices)")));
         }
+        let position_buffer = buffer("mesh positions", 4 * floats, wgpu::BufferUsages::VERTEX);
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        in_chunks(floats, |a, b, dst| positions.subarray(a, b).copy_to(dst), |start, chunk: &[f32]| {
+            for p in chunk.chunks_exact(3) {
+                let p = Vec3::new(p[0], p[1], p[2]);
+                if p.is_finite() {
+                    lo = lo.min(p);
+                    hi = hi.max(p);
+                }
+            }
+            queue.write_buffer(&position_buffer, 4 * start as u64, bytemuck::cast_slice(chunk));
+        });
         if !lo.is_finite() {
+            index_buffer.destroy();
+            position_buffer.destroy();
             return Err(JsError::new("set_mesh: no finite vertex position"));
         }
-        let device = &self.gpu.device;
-        let buffer = |label: &str, contents: &[u8], usage| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
-        };
-        let edges = if wireframe { unique_edges(indices) } else { Vec::new() };
+        let normal_buffer = buffer("mesh normals", 4 * floats, wgpu::BufferUsages::VERTEX);
+        in_chunks(floats, |a, b, dst| normals.subarray(a, b).copy_to(dst), |start, chunk: &[f32]| {
+            queue.write_buffer(&normal_buffer, 4 * start as u64, bytemuck::cast_slice(chunk));
+        });
+        let color_buffer = buffer("mesh colours", 4 * n, wgpu::BufferUsages::VERTEX);
+        if let Some(c) = colors {
+            in_chunks(4 * n, |a, b, dst| c.subarray(a, b).copy_to(dst), |start, chunk: &[u8]| {
+                queue.write_buffer(&color_buffer, start as u64, chunk);
+            });
+        }
+        let edges = wireframe.then(|| {
+            let edges = unique_edges(&indices.to_vec());
+            // Never empty (a buffer slice cannot be); a mesh has at least one edge.
+            let b = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("mesh edges"),
+                contents: bytemuck::cast_slice(&edges),
+                usage: wgpu::BufferUsages::INDEX,
+            });
+            (b, edges.len() as u32)
+        });
         Ok(Some(MeshDraw {
-            positions: buffer("mesh positions", bytemuck::cast_slice(positions), wgpu::BufferUsages::VERTEX),
-            normals: buffer("mesh normals", bytemuck::cast_slice(normals), wgpu::BufferUsages::VERTEX),
-            colors: buffer("mesh colours", &colors, wgpu::BufferUsages::VERTEX),
-            indices: buffer("mesh indices", bytemuck::cast_slice(indices), wgpu::BufferUsages::INDEX),
-            index_count: indices.len() as u32,
-            // Never empty (a buffer slice cannot be); without a wireframe nothing is drawn from it.
-            edges: buffer("mesh edges", bytemuck::cast_slice(if edges.is_empty() { &[0u32, 0] } else { &edges[..] }), wgpu::BufferUsages::INDEX),
-            edge_index_count: edges.len() as u32,
+            positions: position_buffer,
+            normals: normal_buffer,
+            colors: color_buffer,
+            indices: index_buffer,
+            index_count: index_len,
+            edges,
             center: (lo + hi) * 0.5,
             radius: 0.5 * (hi - lo).length(),
         }))
@@ -707,8 +783,8 @@ impl Viewer {
                 m.draw(&mut pass, &self.mesh_pipeline, &self.mesh_bind_group, &m.indices, m.index_count);
                 m.draw(&mut pass, &self.mesh_back_pipeline, &self.mesh_back_bind_group, &m.indices, m.index_count);
             }
-            for m in self.mesh.iter().filter(|m| self.show_wire && m.edge_index_count > 0) {
-                m.draw(&mut pass, &self.wire_pipeline, &self.wire_bind_group, &m.edges, m.edge_index_count);
+            for (m, (edges, count)) in self.mesh.iter().filter_map(|m| Some((m, m.edges.as_ref()?))).filter(|_| self.show_wire) {
+                m.draw(&mut pass, &self.wire_pipeline, &self.wire_bind_group, edges, *count);
             }
             if let (Some(c), true) = (&self.cloud, self.show_cloud) {
                 pass.set_pipeline(&self.pipeline);
@@ -755,6 +831,24 @@ fn mesh_pipeline(device: &wgpu::Device, format: wgpu::TextureFormat) -> (Pipelin
 }
 
 /// Every undirected edge of the triangles once, as pairs of vertex indices (a line list).
+/// Elements a mesh's array is copied in at a time (16 MiB of f32 or u32; a multiple of 3 and
+/// of 4, so vertices and colours never straddle two chunks).
+const UPLOAD_CHUNK: u32 = 3 << 22;
+
+/// Visits `len` elements of a JS typed array in chunks copied (by `copy(begin, end, dst)`) into
+/// one reused wasm buffer, calling `visit(first element, chunk)`.
+fn in_chunks<T: Copy + Default>(len: u32, copy: impl Fn(u32, u32, &mut [T]), mut visit: impl FnMut(u32, &[T])) {
+    let mut buf = vec![T::default(); len.min(UPLOAD_CHUNK) as usize];
+    let mut start = 0;
+    while start < len {
+        let end = (start + UPLOAD_CHUNK).min(len);
+        let dst = &mut buf[..(end - start) as usize];
+        copy(start, end, dst);
+        visit(start, dst);
+        start = end;
+    }
+}
+
 fn unique_edges(indices: &[u32]) -> Vec<u32> {
     let mut keys: Vec<u64> = indices
         .chunks_exact(3)

@@ -448,7 +448,14 @@ for (const [n, label] of [[300_000, '300k'], [20_000_000, '20M']]) test(`a large
     assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
     assert.equal(await page.textContent('#r-watertight'), 'yes');
     assert.match(await page.textContent('#r-notices'), /subsample of 100000/);
-    console.log(`${label} points: loaded and drawn in ${loadMs} ms; reconstructed in ${seconds.toFixed(1)} s (${await page.textContent('#r-stages')})`);
+    // The worker's wasm memory: one that a run grew past 256 MiB is ended (wasm memory never
+    // shrinks) and the next run gets a new one; 20M points grow it that far (measured: 469 MiB;
+    // 300k points 50 MiB).
+    const heap = Number(await page.evaluate(() => document.body.dataset.heap));
+    const ended = await page.evaluate(() => window.nkrrReconstructor.worker === null);
+    assert.equal(ended, heap > 256 * 2 ** 20, `heap ${heap} bytes, worker ended: ${ended}`);
+    if (n >= 20_000_000) assert.ok(ended, `heap ${heap} bytes`);
+    console.log(`${label} points: loaded and drawn in ${loadMs} ms; reconstructed in ${seconds.toFixed(1)} s (${await page.textContent('#r-stages')}); worker heap ${(heap / 2 ** 20).toFixed(0)} MiB`);
     await page.screenshot({ path: path.join(ARTIFACTS, `reconstruct-large-${label}.png`) });
     assert.deepEqual(errors, []);
   } finally {
