@@ -18,6 +18,8 @@
 //! twin, by the area of its pairs, so the layer goes whole with the triangles that found none;
 //! elsewhere pair by pair, and what has no twin (closed objects, thick parts) stays.
 
+use glam::DVec3;
+
 use super::trim::retain_triangles;
 use super::types::Mesh;
 use crate::sample::PointIndex;
@@ -59,44 +61,43 @@ pub fn single_layer(mesh: &mut Mesh, points: &[[f32; 3]], gap: f32) -> SheetRepo
     if nt == 0 || points.is_empty() {
         return SheetReport::default();
     }
-    let p = |i: u32| mesh.positions[i as usize].map(|x| x as f64);
+    let p = |i: u32| DVec3::from(mesh.positions[i as usize].map(|x| x as f64));
     let mut centroids = Vec::with_capacity(nt);
     let mut normals = Vec::with_capacity(nt);
     let mut areas = Vec::with_capacity(nt);
     let mut edge_sum = 0.0;
     for t in &tris {
         let [a, b, c] = t.map(p);
-        let e1 = sub(b, a);
-        let e2 = sub(c, a);
-        let n = cross(e1, e2);
-        let len = dot(n, n).sqrt();
-        edge_sum += dot(e1, e1).sqrt();
-        centroids.push([0, 1, 2].map(|k| ((a[k] + b[k] + c[k]) / 3.0) as f32));
-        normals.push(if len > 0.0 { n.map(|x| x / len) } else { [0.0; 3] });
+        let n = (b - a).cross(c - a);
+        let len = n.length();
+        edge_sum += (b - a).length();
+        centroids.push(((a + b + c) / 3.0).as_vec3().to_array());
+        normals.push(if len > 0.0 { n / len } else { DVec3::ZERO });
         areas.push(0.5 * len);
     }
     // Across, a twin's centroid is within about an edge: the two layers were meshed separately.
     let reach = (edge_sum / nt as f64).max(gap as f64);
     let index = PointIndex::new(&centroids);
+    let at = |t: usize| DVec3::from(centroids[t].map(|x| x as f64));
     let mut twin = vec![u32::MAX; nt];
     let mut near = Vec::new();
     for t in 0..nt {
         let n = normals[t];
-        if n == [0.0; 3] {
+        if n == DVec3::ZERO {
             continue;
         }
         index.k_nearest(centroids[t], NEIGHBOURS, &mut near);
-        let c = centroids[t].map(|x| x as f64);
+        let c = at(t);
         let mut best = f64::INFINITY;
         for &(_, u) in &near {
-            if dot(normals[u as usize], n) > OPPOSITE {
+            if normals[u as usize].dot(n) > OPPOSITE {
                 continue;
             }
-            let d = sub(centroids[u as usize].map(|x| x as f64), c);
-            let along = dot(d, n);
-            let across2 = (dot(d, d) - along * along).max(0.0);
-            if along.abs() <= gap as f64 && across2 <= reach * reach && dot(d, d) < best {
-                best = dot(d, d);
+            let d = at(u as usize) - c;
+            let along = d.dot(n);
+            let across2 = (d.length_squared() - along * along).max(0.0);
+            if along.abs() <= gap as f64 && across2 <= reach * reach && d.length_squared() < best {
+                best = d.length_squared();
                 twin[t] = u;
             }
         }
@@ -122,7 +123,7 @@ pub fn single_layer(mesh: &mut Mesh, points: &[[f32; 3]], gap: f32) -> SheetRepo
             let t = t as usize;
             for &v in &tris[t] {
                 for &u in &around[offsets[v as usize] as usize..offsets[v as usize + 1] as usize] {
-                    if layer[u as usize] == u32::MAX && dot(normals[u as usize], normals[t]) > SAME_LAYER {
+                    if layer[u as usize] == u32::MAX && normals[u as usize].dot(normals[t]) > SAME_LAYER {
                         layer[u as usize] = layers;
                         stack.push(u);
                     }
@@ -138,10 +139,10 @@ pub fn single_layer(mesh: &mut Mesh, points: &[[f32; 3]], gap: f32) -> SheetRepo
     // side) keeps one layer throughout, not the half facing the centroid from each.
     let m = centroid(points);
     let towards = |t: usize| {
-        let d = sub(m, centroids[t].map(|x| x as f64));
-        let len = dot(d, d).sqrt();
+        let d = m - at(t);
+        let len = d.length();
         if len > 0.0 {
-            dot(d, normals[t]) / len
+            d.dot(normals[t]) / len
         } else {
             0.0
         }
@@ -217,24 +218,6 @@ fn triangles_around_vertices(tris: &[[u32; 3]], vertices: usize) -> (Vec<u32>, V
     (offsets, around)
 }
 
-fn centroid(points: &[[f32; 3]]) -> [f64; 3] {
-    let mut s = [0.0f64; 3];
-    for p in points {
-        for k in 0..3 {
-            s[k] += p[k] as f64;
-        }
-    }
-    s.map(|x| x / points.len() as f64)
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+fn centroid(points: &[[f32; 3]]) -> DVec3 {
+    points.iter().map(|p| DVec3::from(p.map(|x| x as f64))).sum::<DVec3>() / points.len() as f64
 }
