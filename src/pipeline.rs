@@ -293,7 +293,7 @@ impl Engine {
         // normalisation makes the scale irrelevant to it), and a similarity keeps normals.
         let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
         (progress.borrow_mut())(&Stage::Done);
-        let crate::mesh::finish::Finished { fit, trim, simplify, .. } = finished;
+        let crate::mesh::finish::Finished { fit, trim, simplify } = finished;
         Ok(Attempt::Done(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None }))
     }
 }

@@ -96,9 +96,7 @@ export class Reconstructor {
   /** Ends the worker and frees its GPU device; a later call starts a new one. */
   dispose() {
     this.job?.reject(new DOMException('the reconstructor was disposed', 'AbortError'));
-    this.worker?.terminate();
-    this.worker = null;
-    this._settle();
+    this._end();
   }
 
   /** Test hook: the worker's GPU device is destroyed as if the driver had reset. */
@@ -131,10 +129,15 @@ export class Reconstructor {
     this.onstatechange?.();
   }
 
-  _replace() {
+  /** Ends the worker (and its wasm memory and GPU device); a later run starts a new one. */
+  _end() {
     this.worker?.terminate();
     this.worker = null;
     this._settle();
+  }
+
+  _replace() {
+    this._end();
     this._start();
   }
 
@@ -167,11 +170,7 @@ export class Reconstructor {
         break;
       }
       case 'done':
-        if (data.result?.stats?.heapBytes > RECYCLE_HEAP_BYTES) {
-          this.worker.terminate();
-          this.worker = null;
-          this.onstatechange?.();
-        }
+        if (data.result?.stats?.heapBytes > RECYCLE_HEAP_BYTES) this._end();
         job.resolve(data.result);
         break;
       case 'cancelled': job.reject(new DOMException('cancelled', 'AbortError')); break;

@@ -4,7 +4,7 @@
 //! (the plan's "finish").
 
 use super::fit::{fit_cloud, FitReport};
-use super::sheets::{single_layer, SheetReport};
+use super::sheets::single_layer;
 use super::simplify::{simplify, SimplifyReport, Target};
 use super::trim::{trim, TrimReport};
 use super::types::Mesh;
@@ -14,7 +14,6 @@ use crate::settings::Settings;
 /// What each finishing step did (None: not asked for).
 pub struct Finished {
     pub fit: Option<FitReport>,
-    pub sheets: Option<SheetReport>,
     pub trim: Option<TrimReport>,
     pub simplify: Option<SimplifyReport>,
 }
@@ -42,13 +41,12 @@ pub fn finish(
         r
     });
     // After the fit, which lays both layers of a sheet on its points.
-    let sheets = sheet_gap.filter(|_| settings.one_layer).map(|gap| {
+    if let Some(gap) = sheet_gap.filter(|_| settings.one_layer) {
         let t = now();
         let r = single_layer(mesh, points, gap);
         timings.push(("one layer", now() - t));
         notices.extend(r.notice());
-        r
-    });
+    }
     let trim = settings.trim.map(|factor| {
         let t = now();
         let r = trim(mesh, points, factor);
@@ -66,5 +64,5 @@ pub fn finish(
         notices.push(r.notice());
         r
     });
-    Finished { fit, sheets, trim, simplify }
+    Finished { fit, trim, simplify }
 }

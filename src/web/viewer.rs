@@ -830,7 +830,6 @@ fn mesh_pipeline(device: &wgpu::Device, format: wgpu::TextureFormat) -> (Pipelin
     (front, back, uniform)
 }
 
-/// Every undirected edge of the triangles once, as pairs of vertex indices (a line list).
 /// Elements a mesh's array is copied in at a time (16 MiB of f32 or u32; a multiple of 3 and
 /// of 4, so vertices and colours never straddle two chunks).
 const UPLOAD_CHUNK: u32 = 3 << 22;
@@ -849,6 +848,7 @@ fn in_chunks<T: Copy + Default>(len: u32, copy: impl Fn(u32, u32, &mut [T]), mut
     }
 }
 
+/// Every undirected edge of the triangles once, as pairs of vertex indices (a line list).
 fn unique_edges(indices: &[u32]) -> Vec<u32> {
     let mut keys: Vec<u64> = indices
         .chunks_exact(3)

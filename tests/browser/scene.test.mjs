@@ -128,11 +128,12 @@ test('a big scan reconstructs in the page (measurement)', { skip: !BIG && 'set N
     } catch { /* no chromium: nothing */ }
     return kinds;
   };
+  const total = (kinds) => Object.values(kinds).reduce((s, v) => s + v, 0);
   const mib = (b) => Math.round(b / 2 ** 20);
   const peak = { all: 0, renderer: 0, gpu: 0 };
   const sampler = setInterval(() => {
     const k = byKind();
-    peak.all = Math.max(peak.all, Object.values(k).reduce((s, v) => s + v, 0));
+    peak.all = Math.max(peak.all, total(k));
     peak.renderer = Math.max(peak.renderer, k.renderer ?? 0);
     peak.gpu = Math.max(peak.gpu, k['gpu-process'] ?? 0);
   }, 2000);
@@ -162,7 +163,7 @@ test('a big scan reconstructs in the page (measurement)', { skip: !BIG && 'set N
     stageLog = setInterval(async () => {
       const stage = await page.textContent('#stage').catch(() => undefined);
       const k = byKind();
-      fs.appendFileSync(progressFile, JSON.stringify({ s: Math.round((Date.now() - t0) / 1000), stage, rss_mib: mib(Object.values(k).reduce((s, v) => s + v, 0)), renderer_mib: mib(k.renderer ?? 0), gpu_process_mib: mib(k['gpu-process'] ?? 0) }) + '\n');
+      fs.appendFileSync(progressFile, JSON.stringify({ s: Math.round((Date.now() - t0) / 1000), stage, rss_mib: mib(total(k)), renderer_mib: mib(k.renderer ?? 0), gpu_process_mib: mib(k['gpu-process'] ?? 0) }) + '\n');
     }, Number(process.env.NKRR_SCENE_LOG_S || 60) * 1000);
     const watch = setInterval(async () => {
       const p = await page.evaluate(() => document.body.dataset.preview).catch(() => undefined);

@@ -36,45 +36,40 @@ test('a PLY picked in the file input is parsed by wasm and drawn', { timeout: 18
 
 // A mesh goes to the GPU a chunk of 12.6M array elements at a time (src/web/viewer.rs), so the
 // page's wasm memory never holds a big scene's whole mesh: a triangle whose vertices lie past the
-// first chunk is drawn where it belongs, an index out of range is refused, and the buffers a
-// replaced mesh held are freed.
+// first chunk is drawn where it belongs, an index out of range is refused, and a replaced mesh's
+// buffers are let go.
 test('a mesh larger than one upload chunk is drawn whole; a bad index is refused', { timeout: 180_000 }, async () => {
   const b = await browser();
   try {
     const { page, errors } = await openPage(b, srv.url);
     await page.waitForFunction(() => document.body.dataset.state === 'ready', null, { timeout: 90_000 });
-    const r = await page.evaluate(() => {
+    const r = await page.evaluate(async () => {
       const v = window.nkrrViewer;
       const n = 4_300_000; // 12.9M floats: the last vertices are in the second chunk
       const positions = new Float32Array(3 * n);
       const normals = new Float32Array(3 * n);
       positions.set([-1, -1, 0, 1, -1, 0, 0, 1, 0], 3 * (n - 3));
       for (let i = n - 3; i < n; i++) normals[3 * i + 2] = 1;
+      const triangle = new Uint32Array([n - 3, n - 2, n - 1]);
       const before = v.gpu_bytes();
-      v.set_mesh(positions, normals, new Uint32Array([n - 3, n - 2, n - 1]));
+      v.set_mesh(positions, normals, triangle);
       const held = v.gpu_bytes() - before;
       let refused = '';
       try { v.set_mesh(positions, normals, new Uint32Array([0, 1, n])); } catch (e) { refused = e.message; }
-      return { held, refused, n, meshAfterRefusal: v.has_mesh, wire: v.has_wireframe };
+      const meshAfterRefusal = v.has_mesh;
+      // The triangle drawn from the second chunk's vertices; the wireframe was not asked for.
+      v.set_mesh(positions, normals, triangle);
+      const heldAgain = v.gpu_bytes() - before;
+      v.set_visible(false, true);
+      v.fit();
+      return { held, heldAgain, refused, n, meshAfterRefusal, coverage: await v.coverage(), wire: v.has_wireframe };
     });
     assert.match(r.refused, new RegExp(`index ${r.n} is out of range`));
     assert.equal(r.meshAfterRefusal, false, 'a refused mesh leaves no mesh behind');
     assert.ok(r.held >= 2 * 12 * r.n, `${r.held} bytes on the GPU for ${r.n} vertices`);
-    // The triangle drawn from the second chunk's vertices; the wireframe was not asked for.
-    const coverage = await page.evaluate(() => {
-      const v = window.nkrrViewer;
-      const n = 4_300_000;
-      const positions = new Float32Array(3 * n);
-      const normals = new Float32Array(3 * n);
-      positions.set([-1, -1, 0, 1, -1, 0, 0, 1, 0], 3 * (n - 3));
-      for (let i = n - 3; i < n; i++) normals[3 * i + 2] = 1;
-      v.set_mesh(positions, normals, new Uint32Array([n - 3, n - 2, n - 1]));
-      v.set_visible(false, true);
-      v.fit();
-      return v.coverage();
-    });
-    assert.ok(coverage > 0.05, `coverage ${coverage}`);
-    assert.equal(await page.evaluate(() => window.nkrrViewer.has_wireframe), false);
+    assert.equal(r.heldAgain, r.held, 'the same mesh set again holds the same buffers, not twice');
+    assert.ok(r.coverage > 0.05, `coverage ${r.coverage}`);
+    assert.equal(r.wire, false);
     assert.deepEqual(errors, []);
   } finally {
     await b.close();
