@@ -153,6 +153,18 @@ pub fn hint(cloud: &PointCloud, settings: &Settings, scale: Scale) -> Option<Str
     })
 }
 
+/// The scene settings a run as one object leaves unused, one sentence each (said, not silent).
+fn scene_only(settings: &Settings) -> Vec<String> {
+    let mut unused = Vec::new();
+    if let Some(d) = settings.detail {
+        unused.push(format!("--detail {d} is for scenes in tiles: one object's mesh cell follows --resolution"));
+    }
+    if !settings.one_layer {
+        unused.push("--two-layers is for scenes in tiles: one object's mesh is left as it is either way".to_string());
+    }
+    unused
+}
+
 /// Tiles for `points`: of `detail · TILE_CELLS` when a detail (cell size) is given, else the
 /// size at which the tiles holding points hold about [`TILE_POINTS`] each.
 pub fn plan(points: &[[f32; 3]], detail: Option<f64>) -> TilePlan {
@@ -328,6 +340,7 @@ pub async fn reconstruct_auto(
         None => {
             let mut rec = engine.reconstruct(cloud, settings, progress).await?;
             rec.notices.extend(hint(cloud, settings, scale));
+            rec.notices.extend(scene_only(settings));
             Ok(rec)
         }
     }

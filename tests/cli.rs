@@ -343,9 +343,13 @@ fn settings_that_do_not_apply_are_warned_of() {
     let out = dir.join("unused.stl").to_string_lossy().into_owned();
     let (code, _, err) = nkrr(&[
         "reconstruct", &eval("spot-3k.ply"), "-o", &out, "--method", "network", "--resolution", "32", "--glb", "meshopt", "--m", "800",
-        "--no-tune",
+        "--no-tune", "--two-layers", "--detail", "0.01",
     ]);
     assert_eq!(code, 0, "{err}");
+    // Scene settings on a cloud reconstructed as one object (decided from the cloud, so said
+    // after it is read).
+    assert!(err.contains("--two-layers is for scenes in tiles"), "{err}");
+    assert!(err.contains("--detail 0.01 is for scenes in tiles"), "{err}");
     let first = err.lines().position(|l| l.starts_with("read ")).unwrap();
     let before: Vec<&str> = err.lines().take(first).collect();
     assert!(before.contains(&"warning: --glb meshopt has no effect and is ignored: it needs a .glb output"), "{err}");
