@@ -129,37 +129,47 @@ pub enum Field {
 }
 
 impl Field {
-    /// What evaluates the field on `planes` in calls of at most `queries` points (the unit
+    /// What evaluates this field on `planes` in calls of at most `queries` points (the unit
     /// cube): the decoder's buffers and, for the regression on the GPU, the predictor's with
     /// its coefficients, made here once for every call (the mesher makes hundreds).
-    pub fn evaluator<'a>(&'a self, net: &'a GpuNet, planes: &GpuPlanes, queries: usize) -> Result<Evaluator<'a>, String> {
+    pub fn evaluator<'a>(self, net: &'a GpuNet, planes: &GpuPlanes, queries: usize) -> Result<Evaluator<'a>, String> {
         let decoder = net.decoder(planes, queries).map_err(|e| e.to_string())?;
-        let predictor = match self {
-            Field::Network => None,
-            Field::Krr(fit) => fit.prepare(queries)?,
-        };
-        Ok(Evaluator { field: self, decoder, predictor })
+        let mut evaluator = Evaluator { field: Field::Network, decoder, queries, predictor: None };
+        evaluator.set_field(self)?;
+        Ok(evaluator)
     }
 }
 
 /// A [`Field`] ready to evaluate ([`Field::evaluator`]).
 pub struct Evaluator<'a> {
-    field: &'a Field,
+    field: Field,
     decoder: crate::net::Decoder<'a>,
+    queries: usize,
     predictor: Option<krr::PreparedPredictor>,
 }
 
 impl Evaluator<'_> {
-    /// Evaluates on `planes` from now on (a scene's next tile, for the same field), keeping
-    /// every buffer.
-    pub fn rebind(&mut self, planes: &GpuPlanes) -> Result<(), String> {
-        self.decoder.rebind(planes).map_err(|e| e.to_string())
+    /// Evaluates `field` on `planes` from now on (a scene's next tile), keeping the decoder's
+    /// buffers. A regression's predictor holds its coefficients, so it is made anew for a new
+    /// fit (the last one's buffers destroyed first).
+    pub fn rebind(&mut self, planes: &GpuPlanes, field: Field) -> Result<(), String> {
+        self.decoder.rebind(planes).map_err(|e| e.to_string())?;
+        self.set_field(field)
+    }
+
+    fn set_field(&mut self, field: Field) -> Result<(), String> {
+        self.predictor = None;
+        if let Field::Krr(fit) = &field {
+            self.predictor = fit.prepare(self.queries)?;
+        }
+        self.field = field;
+        Ok(())
     }
 
     /// The field at `points`, decoding their features from the planes.
     pub async fn evaluate(&self, points: &[[f32; 3]]) -> Result<Vec<f32>, String> {
         let (features, logits) = self.decoder.decode(points).await.map_err(|e| e.to_string())?;
-        match self.field {
+        match &self.field {
             Field::Network => Ok(logits),
             Field::Krr(fit) => fit.predict_with(self.predictor.as_ref(), points, features, &logits).await,
         }

@@ -319,11 +319,11 @@ impl TilePlan {
     }
 }
 
-/// What a tile runs, for the preflight's plan of the largest tile: the network's field meshed as
-/// it is (the regression per tile is not built, and the scene's mesh is the level set of the
-/// blended field, not a Poisson surface), whatever `settings` ask of one object.
+/// What a tile runs, for the preflight's plan of the largest tile: the method asked for (the
+/// network, or the regression tuned on the tile's points), its field meshed as it is (the
+/// scene's mesh is the level set of the blended field, not a Poisson surface).
 pub fn tile_settings(settings: &Settings) -> Settings {
-    Settings { method: Method::Network, surface: crate::settings::Surface::Field, ..settings.clone() }
+    Settings { surface: crate::settings::Surface::Field, ..settings.clone() }
 }
 
 /// Reconstructs `cloud` (whose file says `scale` of its size, see [`decide`]) the way [`decide`] picks: in tiles when it is a scene, else whole
@@ -359,9 +359,6 @@ pub async fn reconstruct(
     if settings.resolution != Settings::default().resolution {
         notices.push(format!("--resolution {} is for one object: a scene's mesh cell follows its tiles ({:.3} of the cloud's units; --detail sets it)", settings.resolution, tiles.cell));
     }
-    if settings.method == Method::Nkrr {
-        notices.push("the tiles use the network's field: the kernel regression per tile is not built yet (--method network says so)".into());
-    }
     if settings.surface == crate::settings::Surface::Poisson {
         notices.push("--surface poisson is for one object: a scene's mesh is the level set of its tiles' blended field".into());
     }
@@ -376,9 +373,12 @@ pub async fn reconstruct(
     // readbacks), the blend on the CPU (band nodes, the sweep, its meshing), and handing the
     // finished pieces over (in the page: to the viewer). The page runs tiles several times
     // slower than native; these say which part.
-    let (mut t_network, mut t_blend, mut t_pieces) = (0.0, 0.0, 0.0);
-    // The tiles evaluate the network's field (the regression per tile is not built yet).
-    let network = Field::Network;
+    let (mut t_network, mut t_blend, mut t_pieces, mut t_regression) = (0.0, 0.0, 0.0, 0.0);
+    let nkrr = settings.method == Method::Nkrr;
+    // The regression's inducing points and backend, planned once for the largest tile (a
+    // tile with fewer points gets fewer, as one object would: crate::plan::inducing_points).
+    let tile_plan = nkrr.then(|| engine.memory_plan(tiles.largest_tile(&cloud.positions, 1.0), false, &tile_settings(settings)));
+    let mut tuned = Tuned::default();
     let mut evaluator: Option<crate::field::Evaluator> = None;
     let of = tiles.tiles.len();
     for (done, ((tile, _), ids)) in tiles.tiles.iter().zip(&mut members).enumerate() {
@@ -406,14 +406,31 @@ pub async fn reconstruct(
                     local([0, 1, 2].map(|a| tiles.origin[a] + n[a] as f64 * tiles.cell))
                 })
                 .collect();
+            // The regression tuned on this tile's points, as one object's would be on its own
+            // (the pairs, the tuning, β): the tile's field is then g, or l + g.
+            let field = match &tile_plan {
+                Some(plan) => {
+                    let t = now();
+                    let pairs = crate::field::training_pairs(&engine.net, &planes, &normalised, settings).await?;
+                    let (regression, _) = plan.regression(settings, normalised.len());
+                    // Cancel reaches into the tuning's steps, not only between tiles.
+                    let mut report = |_: usize, _: f64| progress(&Stage::Tile { done, of });
+                    let (fit, summary) = crate::field::fit(&engine.gpu, &pairs, settings, regression, &mut report).await?;
+                    tuned.add(&summary);
+                    t_regression += now() - t;
+                    Field::Krr(fit)
+                }
+                None => Field::Network,
+            };
             let field_error = |e| PipelineError::Mesh(ExtractError::Field(FieldError(e)));
-            // One evaluator for every tile: its buffers made at the first, rebound to each tile's planes.
+            // One evaluator for every tile: its decoder's buffers made at the first, rebound to
+            // each tile's planes and field.
             let evaluator = match &mut evaluator {
                 Some(ev) => {
-                    ev.rebind(&planes).map_err(field_error)?;
+                    ev.rebind(&planes, field).map_err(field_error)?;
                     ev
                 }
-                None => evaluator.insert(network.evaluator(&engine.net, &planes, EVALUATION_CHUNK).map_err(field_error)?),
+                None => evaluator.insert(field.evaluator(&engine.net, &planes, EVALUATION_CHUNK).map_err(field_error)?),
             };
             let mut values = Vec::with_capacity(queries.len());
             let t = now();
@@ -441,8 +458,14 @@ pub async fn reconstruct(
         t_blend += now() - t_tile;
     }
     progress(&Stage::Tile { done: of, of });
-    t_blend -= t_network + t_pieces;
+    // The evaluator's predictor goes before the mesh is finished.
+    drop(evaluator);
+    t_blend -= t_network + t_pieces + t_regression;
     let mut timings = vec![("tiles", now() - t_all), ("network in tiles", t_network), ("blend in tiles", t_blend), ("pieces shown", t_pieces)];
+    if nkrr {
+        timings.push(("regression in tiles", t_regression));
+        notices.extend(tuned.notice());
+    }
 
     let t = now();
     let report = sweep.report();
@@ -453,7 +476,7 @@ pub async fn reconstruct(
     (mesh, removal) = crate::mesh::postprocess(mesh, &opts);
     timings.push(("mesh", now() - t));
     if mesh.indices.is_empty() {
-        return Err(PipelineError::NoSurface { evaluations, field_max: 0.0, method: Method::Network });
+        return Err(PipelineError::NoSurface { evaluations, field_max: 0.0, method: settings.method });
     }
     // The same finish as one object's (the last fit, the trim, the simplification), against
     // all the scene's points: its steps measure in point spacings, whatever the units.
@@ -485,6 +508,32 @@ pub async fn reconstruct(
         gpu_peaks: Vec::new(),
         scene: Some(report),
     })
+}
+
+/// What the regression's tuning did over a scene's tiles, said once for the scene (a tile's
+/// own summary is one object's: [`crate::field::TuningSummary`]).
+#[derive(Default)]
+struct Tuned {
+    tiles: usize,
+    m: (usize, usize),
+    steps: usize,
+    /// Tiles whose kept iterate is the first (the tuning did not improve on the initial fit).
+    kept_first: usize,
+}
+
+impl Tuned {
+    fn add(&mut self, s: &crate::field::TuningSummary) {
+        self.m = if self.tiles == 0 { (s.m, s.m) } else { (self.m.0.min(s.m), self.m.1.max(s.m)) };
+        self.tiles += 1;
+        self.steps += s.steps_run;
+        self.kept_first += (s.best_step == 0) as usize;
+    }
+
+    fn notice(&self) -> Option<String> {
+        let Tuned { tiles, m, steps, kept_first } = *self;
+        let m = if m.0 == m.1 { format!("m = {}", m.0) } else { format!("m = {}-{} (fewer where a tile has fewer points)", m.0, m.1) };
+        (tiles > 0).then(|| format!("the kernel regression was tuned on each of {tiles} tiles' points ({m}, {:.0} steps a tile; {kept_first} tiles kept their initial fit)", steps as f64 / tiles as f64))
+    }
 }
 
 /// Cells along a block of the sweep: half a tile, so that a block's nodes (and the nodes one

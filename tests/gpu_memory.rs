@@ -38,11 +38,13 @@ fn resources_are_made_once_and_each_stage_stays_within_its_plan() {
         let (rf, made_fine) = run(&engine, &cloud, &fine);
         let (ec, ef) = (rc.extract.refine.evaluations, rf.extract.refine.evaluations);
         // The finer mesh evaluates the field in several times as many calls of 32768 points;
-        // the buffers, bind groups and pipelines made are the same.
+        // the buffers and bind groups made are the same, and the second run compiles no
+        // pipeline: the device keeps those the first one built (a scene builds its regression
+        // once per tile).
         assert!(ef > 3 * ec && ef > 4 * 32_768, "{method:?}: {ec} and {ef} evaluations");
         assert_eq!(made_coarse.buffers, made_fine.buffers, "{method:?}: buffers made at resolution 64 and 160");
         assert_eq!(made_coarse.bind_groups, made_fine.bind_groups, "{method:?}: bind groups made");
-        assert_eq!(made_coarse.pipelines, made_fine.pipelines, "{method:?}: pipelines made");
+        assert_eq!(made_fine.pipelines, 0, "{method:?}: pipelines made again (the first run made {})", made_coarse.pipelines);
 
         for (rec, s) in [(&rc, &coarse), (&rf, &fine)] {
             let plan = engine.memory_plan(cloud.len(), false, s);

@@ -178,13 +178,21 @@ const SHARES = {
 };
 
 /** ", about m:ss left" in a stage whose steps cost about the same (tiles, tuning steps), from
- * the time since its first event; empty until a few seconds and one step have passed. */
+ * the time since its first event; empty until a few seconds and one step have passed. Made when
+ * `done` moves and kept until it moves again: a scene's tile is reported again while its
+ * regression tunes (so that cancel reaches it), and the estimate must not creep up meanwhile. */
 function left(p, done, of, what) {
   const since = job.stageStart[p.stage] ??= performance.now();
+  const kept = job.stageLeft[p.stage];
+  if (kept && kept.done === done) return kept.text;
   const t = (performance.now() - since) / 1000;
-  if (!(done > 0 && done < of && t > 3)) return '';
-  const s = Math.round((t / done) * (of - done));
-  return `, about ${Math.floor(s / 60)}:${String(s % 60).padStart(2, '0')} left${what}`;
+  let text = '';
+  if (done > 0 && done < of && t > 3) {
+    const s = Math.round((t / done) * (of - done));
+    text = `, about ${Math.floor(s / 60)}:${String(s % 60).padStart(2, '0')} left${what}`;
+  }
+  job.stageLeft[p.stage] = { done, text };
+  return text;
 }
 
 function stageText(p, opts) {
@@ -298,7 +306,7 @@ async function run() {
   const ext = input.name.match(/\.[^.]+$/)?.[0].toLowerCase();
   options.name = (nk.cloud_extensions().includes(ext) ? input.name.slice(0, -ext.length) : input.name) || 'mesh';
   const abort = new AbortController();
-  const me = { options, started: performance.now(), fraction: 0, stage: 'setup', stageStart: {}, timer: setInterval(tick, 100), abort };
+  const me = { options, started: performance.now(), fraction: 0, stage: 'setup', stageStart: {}, stageLeft: {}, timer: setInterval(tick, 100), abort };
   job = me;
   resultPanel.set(null);
   viewer.clear_mesh();

@@ -21,6 +21,7 @@ pub use clock::now;
 pub use footprint::Footprint;
 pub use ledger::{Allocations, Ledger};
 
+use std::collections::HashMap;
 use std::fmt;
 use std::future::Future;
 use std::pin::Pin;
@@ -69,6 +70,10 @@ pub struct Gpu {
     pub limits: wgpu::Limits,
     /// What has been allocated through this handle and its clones ([`ledger`]).
     pub ledger: Arc<Ledger>,
+    /// Compute pipelines already built, by their WGSL source and entry points
+    /// ([`Gpu::compute_pipelines`]): a stage built once per tile of a scene compiles its
+    /// shaders once per device, not once per tile.
+    pipelines: Arc<Mutex<HashMap<(String, Vec<String>), Vec<wgpu::ComputePipeline>>>>,
 }
 
 /// The largest buffer a shader may bind under `limits`: both the storage-binding and the
@@ -115,7 +120,7 @@ impl Gpu {
             })
             .await
             .map_err(|e| GpuError::Device(e.to_string()))?;
-        let gpu = Gpu { adapter, device, queue, info, limits, ledger: Arc::default() };
+        let gpu = Gpu { adapter, device, queue, info, limits, ledger: Arc::default(), pipelines: Arc::default() };
         // Whether the device counts its buffer memory (wgpu's `counters` feature, on in the test
         // build): a 4-byte probe either shows up in the count or the count stays 0.
         let probe = gpu.storage::<u32>("ledger probe", 1)?;
@@ -261,14 +266,20 @@ impl Gpu {
     }
 
     /// Pipelines for several entry points of one WGSL module, compiled once (layouts inferred
-    /// per entry point).
+    /// per entry point). Once per device: a second call with the same source and entry points
+    /// returns the same pipelines (a compile error is reported to the first caller's error
+    /// scope only; our shaders are fixed text, so the first call is where a bug shows).
     pub fn compute_pipelines(&self, label: &str, source: &str, entries: &[&str]) -> Vec<wgpu::ComputePipeline> {
+        let key = (source.to_string(), entries.iter().map(|e| e.to_string()).collect::<Vec<_>>());
+        if let Some(built) = self.pipelines.lock().expect("pipeline cache").get(&key) {
+            return built.clone();
+        }
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(label),
             source: wgpu::ShaderSource::Wgsl(source.into()),
         });
         self.ledger.pipelines(entries.len());
-        entries
+        let built: Vec<wgpu::ComputePipeline> = entries
             .iter()
             .map(|e| {
                 self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -280,7 +291,9 @@ impl Gpu {
                     cache: None,
                 })
             })
-            .collect()
+            .collect();
+        self.pipelines.lock().expect("pipeline cache").insert(key, built.clone());
+        built
     }
 
     /// A bind group for group 0 of `pipeline`, binding `buffers` at 0, 1, 2, ….
@@ -455,6 +468,11 @@ impl Readback {
     /// Bytes it holds.
     pub fn capacity(&self) -> u64 {
         self.capacity
+    }
+
+    /// Its buffer, for [`Gpu::retire`] by the holder that is done with it.
+    pub fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
     }
 }
 

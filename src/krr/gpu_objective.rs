@@ -187,6 +187,7 @@ struct GradBinds {
 /// Device buffers, uniforms and bind groups for one inducing-point count `m`, made once and
 /// reused by every evaluation (rebuilt only when `m` or the block size changes).
 struct Workspace {
+    gpu: Gpu,
     m: usize,
     max_rows: usize,
     blocks: Vec<Block>,
@@ -317,6 +318,7 @@ impl Workspace {
         held.extend(k);
         held.extend([r, p, part, sdims]);
         Ok(Workspace {
+            gpu: gpu.clone(),
             m,
             max_rows: block_rows,
             blocks,
@@ -335,6 +337,16 @@ impl Workspace {
             staging,
             _held: held,
         })
+    }
+}
+
+/// Destroyed with its holder, not left to the browser's garbage collector ([`Gpu::retire`]): a
+/// scene tunes a regression per tile, each with its own workspace.
+impl Drop for Workspace {
+    fn drop(&mut self) {
+        let own = [&self.z, &self.inv_s, &self.acc, &self.bacc, &self.beta, &self.w, &self.sums, self.staging.buffer()];
+        let grad = self.grad.iter().map(|g| &g.dims);
+        self.gpu.retire(own.into_iter().chain(grad).chain(&self._held).cloned());
     }
 }
 
@@ -396,6 +408,14 @@ pub struct GpuObjective {
     pub total_timings: PhaseTimings,
     /// Evaluations counted in `total_timings`.
     pub evaluations: usize,
+}
+
+/// The training data's buffers destroyed with it (the workspace destroys its own): see
+/// [`Workspace`]'s drop.
+impl Drop for GpuObjective {
+    fn drop(&mut self) {
+        self.gpu.retire([self.x.clone(), self.y.clone(), self.yq.clone()]);
+    }
 }
 
 impl GpuObjective {

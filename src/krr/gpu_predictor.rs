@@ -109,6 +109,16 @@ impl PreparedPredictor {
     }
 }
 
+/// Destroyed with its holder, not left to the browser's garbage collector ([`Gpu::retire`]): a
+/// scene prepares a predictor per tile.
+impl Drop for PreparedPredictor {
+    fn drop(&mut self) {
+        let own = [&self.q_buf, &self.o_buf, self.staging.buffer()];
+        let dims = self.segments.iter().map(|s| &s.dims);
+        self.gpu.retire(own.into_iter().chain(dims).chain(&self._held).cloned());
+    }
+}
+
 /// The Nyström predictor on the GPU for feature dimension `d`: `g(q) = Σ_j β_j k(q, z_j)` at
 /// millions of queries, in chunks of at most [`PREDICT_CHUNK`] (fewer where a binding cannot hold
 /// that many).

@@ -888,6 +888,15 @@ pub struct Decoder<'a> {
     staging: crate::gpu::Readback,
 }
 
+/// Destroyed with its holder, not left to the browser's garbage collector ([`Gpu::retire`]): a
+/// scene's regression decodes its training pairs once per tile.
+impl Drop for Decoder<'_> {
+    fn drop(&mut self) {
+        let own = [&self.q_buf, &self.f_buf, &self.l_buf, &self.params, self.staging.buffer()];
+        self.net.gpu.retire(own.into_iter().cloned());
+    }
+}
+
 impl Decoder<'_> {
     /// Queries per submission.
     pub fn chunk_queries(&self) -> usize {

@@ -281,9 +281,18 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     let mut last = String::new();
     // When each stage with steps of about equal cost (tiles, tuning steps) began: the time left.
     let mut started: std::collections::HashMap<&str, std::time::Instant> = std::collections::HashMap::new();
+    // The estimate is made when `done` moves and kept until it moves again: a stage may report
+    // the same step again (a scene's tile while its regression tunes, to be cancellable), and
+    // the estimate must not creep up meanwhile.
+    let mut said: std::collections::HashMap<&str, (usize, String)> = std::collections::HashMap::new();
     let mut left = move |stage: &'static str, done: usize, of: usize| -> String {
         let t = started.entry(stage).or_insert_with(std::time::Instant::now).elapsed().as_secs_f64();
-        if done > 0 && done < of && t > 1.0 { format!(", about {} left", minutes(t / done as f64 * (of - done) as f64)) } else { String::new() }
+        if let Some((_, text)) = said.get(stage).filter(|(d, _)| *d == done) {
+            return text.clone();
+        }
+        let text = if done > 0 && done < of && t > 1.0 { format!(", about {} left", minutes(t / done as f64 * (of - done) as f64)) } else { String::new() };
+        said.insert(stage, (done, text.clone()));
+        text
     };
     let mut report = |s: &Stage| {
         let line = match s {
