@@ -162,6 +162,9 @@ fn scene_only(settings: &Settings) -> Vec<String> {
     if !settings.one_layer {
         unused.push("--two-layers is for scenes in tiles: one object's mesh is left as it is either way".to_string());
     }
+    if settings.tile_regression && settings.method == Method::Nkrr {
+        unused.push("--tile-regression is for scenes in tiles: one object's regression is tuned on the whole cloud either way".to_string());
+    }
     unused
 }
 
@@ -319,11 +322,12 @@ impl TilePlan {
     }
 }
 
-/// What a tile runs, for the preflight's plan of the largest tile: the method asked for (the
-/// network, or the regression tuned on the tile's points), its field meshed as it is (the
-/// scene's mesh is the level set of the blended field, not a Poisson surface).
+/// What a tile runs, for the preflight's plan of the largest tile: the network, or, with
+/// [`Settings::tile_regression`], the regression tuned on the tile's points; its field meshed as
+/// it is (the scene's mesh is the level set of the blended field, not a Poisson surface).
 pub fn tile_settings(settings: &Settings) -> Settings {
-    Settings { surface: crate::settings::Surface::Field, ..settings.clone() }
+    let method = if settings.tile_regression { settings.method } else { Method::Network };
+    Settings { method, surface: crate::settings::Surface::Field, ..settings.clone() }
 }
 
 /// Reconstructs `cloud` (whose file says `scale` of its size, see [`decide`]) the way [`decide`] picks: in tiles when it is a scene, else whole
@@ -359,6 +363,9 @@ pub async fn reconstruct(
     if settings.resolution != Settings::default().resolution {
         notices.push(format!("--resolution {} is for one object: a scene's mesh cell follows its tiles ({:.3} of the cloud's units; --detail sets it)", settings.resolution, tiles.cell));
     }
+    if settings.method == Method::Nkrr && !settings.tile_regression {
+        notices.push("the tiles use the network's field: --tile-regression tunes the kernel regression on each tile's points, several times slower (docs/scenes.md)".into());
+    }
     if settings.surface == crate::settings::Surface::Poisson {
         notices.push("--surface poisson is for one object: a scene's mesh is the level set of its tiles' blended field".into());
     }
@@ -374,10 +381,15 @@ pub async fn reconstruct(
     // finished pieces over (in the page: to the viewer). The page runs tiles several times
     // slower than native; these say which part.
     let (mut t_network, mut t_blend, mut t_pieces, mut t_regression) = (0.0, 0.0, 0.0, 0.0);
-    let nkrr = settings.method == Method::Nkrr;
+    let nkrr = tile_settings(settings).method == Method::Nkrr;
     // The regression's inducing points and backend, planned once for the largest tile (a
     // tile with fewer points gets fewer, as one object would: crate::plan::inducing_points).
     let tile_plan = nkrr.then(|| engine.memory_plan(tiles.largest_tile(&cloud.positions, 1.0), false, &tile_settings(settings)));
+    if let Some(plan) = &tile_plan {
+        // What the plan changes to fit is said, as for one object (it is the regression's m
+        // that the tiles take from it).
+        notices.extend(plan.actions.iter().map(|a| format!("to fit in memory, each tile's regression will {a}")));
+    }
     let mut tuned = Tuned::default();
     let mut evaluator: Option<crate::field::Evaluator> = None;
     let of = tiles.tiles.len();

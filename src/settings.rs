@@ -127,6 +127,9 @@ pub struct Settings {
     pub surface: Surface,
     pub detail: Option<f32>,
     pub one_layer: bool,
+    /// A scene's tiles tune the kernel regression on their points (with [`Method::Nkrr`]);
+    /// off, they use the network's field, several times faster (docs/scenes.md).
+    pub tile_regression: bool,
 }
 
 impl Settings {
@@ -191,6 +194,7 @@ impl Default for Settings {
             surface: Surface::Auto,
             detail: None,
             one_layer: false,
+            tile_regression: false,
         };
         for def in TABLE {
             (def.set)(&mut s, def.default);
@@ -558,6 +562,19 @@ pub static TABLE: &[Setting] = &[
         advanced: true,
         get: |s| Value::Bool(s.one_layer),
         set: |s, v| s.one_layer = flag(v),
+        ..BASE
+    },
+    Setting {
+        key: "tileRegression",
+        flag: "--tile-regression",
+        label: "Regression per tile",
+        help: "in a tiled scene, tune the kernel regression on each tile's points as on one object's (closer to the points, several times slower); off: each tile meshes the network's field",
+        kind: Kind::Switch,
+        default: Value::Bool(false),
+        nkrr_only: true,
+        advanced: true,
+        get: |s| Value::Bool(s.tile_regression),
+        set: |s, v| s.tile_regression = flag(v),
         ..BASE
     },
     Setting {

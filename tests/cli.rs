@@ -343,7 +343,7 @@ fn settings_that_do_not_apply_are_warned_of() {
     let out = dir.join("unused.stl").to_string_lossy().into_owned();
     let (code, _, err) = nkrr(&[
         "reconstruct", &eval("spot-3k.ply"), "-o", &out, "--method", "network", "--resolution", "32", "--glb", "meshopt", "--m", "800",
-        "--no-tune", "--two-layers", "--detail", "0.01",
+        "--no-tune", "--two-layers", "--detail", "0.01", "--tile-regression",
     ]);
     assert_eq!(code, 0, "{err}");
     // Scene settings on a cloud reconstructed as one object (decided from the cloud, so said
@@ -355,6 +355,7 @@ fn settings_that_do_not_apply_are_warned_of() {
     assert!(before.contains(&"warning: --glb meshopt has no effect and is ignored: it needs a .glb output"), "{err}");
     assert!(before.contains(&"warning: --m 800 has no effect and is ignored: it needs the nkrr method (--method nkrr)"), "{err}");
     assert!(before.contains(&"warning: --steps 0 has no effect and is ignored: it needs the nkrr method (--method nkrr)"), "{err}");
+    assert!(before.contains(&"warning: --tile-regression has no effect and is ignored: it needs the nkrr method (--method nkrr)"), "{err}");
     // Settings that apply, and defaults, are not mentioned.
     let glb = dir.join("used.glb").to_string_lossy().into_owned();
     let (code, _, err) = nkrr(&["reconstruct", &eval("spot-3k.ply"), "-o", &glb, "--method", "network", "--resolution", "32", "--glb", "meshopt"]);

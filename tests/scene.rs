@@ -234,7 +234,7 @@ fn the_regression_is_tuned_per_tile_and_its_buffers_go_with_each_tile() {
     let gpu = nkrr::gpu::Gpu::new_blocking().expect("a wgpu adapter (lavapipe will do)");
     let engine = pollster::block_on(Engine::new(gpu)).unwrap();
     // Fewer tuning steps than one object's default: the test is about the tiles, not the tuning.
-    let settings = |method| Settings { method, tiles: Tiles::On, steps: 8, ..Settings::default() };
+    let settings = |method| Settings { method, tiles: Tiles::On, steps: 8, tile_regression: true, ..Settings::default() };
     let run = |method: Method| {
         let s = settings(method);
         let before = engine.gpu.allocations();
