@@ -5,6 +5,8 @@
 //! queries: dense regions get tight offsets, sparse ones wide, so the pseudo-labels l(p~) cover a
 //! band around the surface whose width follows the sampling density rather than a fixed scale.
 
+use std::collections::HashSet;
+
 use crate::rng::SplitMix64;
 
 /// Default neighbour rank for σ_p (Neural-Pull uses about 50).
@@ -200,8 +202,9 @@ impl Grid {
         // About two points per cell if they filled the box; surfaces fill far fewer cells, so
         // occupied cells hold more, which is what a k-NN search with k ~ 50 wants.
         let per_axis = ((points.len() as f64 / 2.0).cbrt().ceil() as i64).clamp(1, 256);
-        let h = extent / per_axis as f32;
-        let dims = [0, 1, 2].map(|a| (((max[a] - min[a]) / h) as i64 + 1).clamp(1, 257));
+        let h = surface_cell(points, min, max, extent / per_axis as f32);
+        // (At least one cell: an empty cloud's box is inverted.)
+        let dims = [0, 1, 2].map(|a| (((max[a] - min[a]) / h) as i64 + 1).clamp(1, 1 << 22));
         let mut grid = Grid { min, h, dims, start: Vec::new(), items: Vec::new() };
         let cells = (dims[0] * dims[1] * dims[2]) as usize;
         let ids: Vec<usize> = points.iter().map(|p| grid.index(grid.cell_of(p))).collect();
@@ -256,6 +259,36 @@ impl Grid {
             }
         }
     }
+}
+
+/// Points per occupied cell beyond which the volume's cell is refined ([`surface_cell`]): an
+/// object's cloud stays well below it (its cells as before), a scene's surfaces in their large
+/// box far above (a street's 3M mesh centroids: hundreds a cell).
+const CROWDED: f64 = 32.0;
+
+/// Points per occupied cell that a refined cell aims at: a 3 × 3 × 3 search around a surface
+/// point then holds about k ~ 50 points.
+const SURFACE_PER_CELL: f64 = 8.0;
+
+/// The grid's cell: `h` (sized as if the points filled their box), or, when the points crowd
+/// into few of its cells (surfaces in a large box: a street, a room's mesh), finer by the
+/// square root of the crowding (points on a surface per cell go as h²), but never so fine that
+/// the grid holds more than four cells a point (or 2M): its offsets are an array over every
+/// cell of the box.
+fn surface_cell(points: &[[f32; 3]], min: [f32; 3], max: [f32; 3], h: f32) -> f32 {
+    let n = points.len();
+    let occupied: HashSet<[i64; 3]> = points.iter().map(|p| [0, 1, 2].map(|a| ((p[a] - min[a]) / h) as i64)).collect();
+    let crowding = n as f64 / occupied.len().max(1) as f64;
+    if crowding <= CROWDED {
+        return h;
+    }
+    let cells = |h: f32| (0..3).map(|a| (((max[a] - min[a]) / h) as f64 + 1.0)).product::<f64>();
+    let most = (4 * n).max(1 << 21) as f64;
+    let mut fine = h * (SURFACE_PER_CELL / crowding).sqrt() as f32;
+    while cells(fine) > most {
+        fine *= 1.1;
+    }
+    fine.min(h)
 }
 
 #[cfg(test)]
@@ -331,6 +364,34 @@ mod tests {
         let empty: Vec<[f32; 3]> = Vec::new();
         assert_eq!(PointIndex::new(&empty).nearest_distance([0.0; 3], &mut got), f32::INFINITY);
         assert_eq!(mean_spacing(&[[0.0; 3], [0.0; 3], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0]]), (1.0 + 2.0) / 2.0);
+    }
+
+    #[test]
+    fn surfaces_in_a_large_box_get_finer_cells_and_the_same_neighbours() {
+        // A street's ground and one facade: 60k points on 40 x 20 m and 40 x 12 m, in a box
+        // 40 x 20 x 12 m that they fill little of.
+        let mut r = SplitMix64(21);
+        let mut pts: Vec<[f32; 3]> = (0..40_000).map(|_| [(40.0 * r.unit()) as f32, (20.0 * r.unit()) as f32, 0.0]).collect();
+        pts.extend((0..20_000).map(|_| [(40.0 * r.unit()) as f32, 20.0, (12.0 * r.unit()) as f32]));
+        let volume_h = 40.0 / (30_000f64.cbrt().ceil() as f32);
+        let grid = Grid::new(&pts);
+        let occupied: HashSet<usize> = pts.iter().map(|p| grid.index(grid.cell_of(p))).collect();
+        let per_cell = pts.len() as f64 / occupied.len() as f64;
+        assert!(grid.h < 0.5 * volume_h && per_cell < 2.0 * SURFACE_PER_CELL, "cell {} m (volume's {volume_h}), {per_cell:.1} points a cell", grid.h);
+        assert!((grid.dims.iter().product::<i64>() as usize) <= (4 * pts.len()).max(1 << 21));
+        let index = PointIndex::new(&pts);
+        let mut got = Vec::new();
+        for q in 0..200 {
+            let p = if q % 2 == 0 { pts[q * 97] } else { [(50.0 * r.unit() - 5.0) as f32, (30.0 * r.unit() - 5.0) as f32, (20.0 * r.unit() - 4.0) as f32] };
+            index.k_nearest(p, 24, &mut got);
+            let mut d: Vec<f32> = pts.iter().map(|x| (0..3).map(|a| (p[a] - x[a]) * (p[a] - x[a])).sum::<f32>()).collect();
+            d.sort_by(f32::total_cmp);
+            assert_eq!(got.iter().map(|&(d2, _)| d2).collect::<Vec<_>>(), d[..24], "q={p:?}");
+        }
+        // An object's cloud keeps the volume's cell (its neighbours as before).
+        let sphere = sphere_cloud(10_000, 22);
+        let extent = (0..3).map(|a| sphere.iter().map(|p| p[a]).fold(f32::MIN, f32::max) - sphere.iter().map(|p| p[a]).fold(f32::MAX, f32::min)).fold(0.0, f32::max);
+        assert_eq!(Grid::new(&sphere).h, extent / 5_000f64.cbrt().ceil() as f32, "the sphere's cell changed");
     }
 
     #[test]
