@@ -282,7 +282,7 @@ fn surface_cell(points: &[[f32; 3]], min: [f32; 3], max: [f32; 3], h: f32) -> f3
     if crowding <= CROWDED {
         return h;
     }
-    let cells = |h: f32| (0..3).map(|a| (((max[a] - min[a]) / h) as f64 + 1.0)).product::<f64>();
+    let cells = |h: f32| (0..3).map(|a| ((max[a] - min[a]) / h) as f64 + 1.0).product::<f64>();
     let most = (4 * n).max(1 << 21) as f64;
     let mut fine = h * (SURFACE_PER_CELL / crowding).sqrt() as f32;
     while cells(fine) > most {

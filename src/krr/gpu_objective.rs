@@ -211,7 +211,7 @@ struct Workspace {
     staging: crate::gpu::Readback,
     /// Buffers only the bind groups refer to: `K~` row blocks (u32 fixed point,
     /// `q = round(K · 2²⁴)`), r, P, the partial sums and the fixed uniforms.
-    _held: Vec<wgpu::Buffer>,
+    held: Vec<wgpu::Buffer>,
 }
 
 impl Workspace {
@@ -335,7 +335,7 @@ impl Workspace {
             grad,
             sum,
             staging,
-            _held: held,
+            held,
         })
     }
 }
@@ -346,7 +346,7 @@ impl Drop for Workspace {
     fn drop(&mut self) {
         let own = [&self.z, &self.inv_s, &self.acc, &self.bacc, &self.beta, &self.w, &self.sums, self.staging.buffer()];
         let grad = self.grad.iter().map(|g| &g.dims);
-        self.gpu.retire(own.into_iter().chain(grad).chain(&self._held).cloned());
+        self.gpu.retire(own.into_iter().chain(grad).chain(&self.held).cloned());
     }
 }
 

@@ -65,7 +65,7 @@ pub struct PreparedPredictor {
     segments: Vec<Segment>,
     staging: crate::gpu::Readback,
     /// Z, 1/s and β, bound by the segments.
-    _held: [wgpu::Buffer; 3],
+    held: [wgpu::Buffer; 3],
 }
 
 impl PreparedPredictor {
@@ -115,7 +115,7 @@ impl Drop for PreparedPredictor {
     fn drop(&mut self) {
         let own = [&self.q_buf, &self.o_buf, self.staging.buffer()];
         let dims = self.segments.iter().map(|s| &s.dims);
-        self.gpu.retire(own.into_iter().chain(dims).chain(&self._held).cloned());
+        self.gpu.retire(own.into_iter().chain(dims).chain(&self.held).cloned());
     }
 }
 
@@ -232,7 +232,7 @@ impl GpuPredictor {
             segments.push(Segment { j_begin, dims, bind });
         }
         let staging = g.readback((8 * chunk) as u64);
-        Ok(PreparedPredictor { gpu: g.clone(), pipe: self.pipe.clone(), d, m, chunk, rows: std::cell::Cell::new(chunk), q_buf, o_buf, segments, staging, _held: [z_buf, s_buf, b_buf] })
+        Ok(PreparedPredictor { gpu: g.clone(), pipe: self.pipe.clone(), d, m, chunk, rows: std::cell::Cell::new(chunk), q_buf, o_buf, segments, staging, held: [z_buf, s_buf, b_buf] })
     }
 
     /// [`GpuPredictor::predict`], blocking (native only).
