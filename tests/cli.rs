@@ -43,6 +43,22 @@ fn info_reports_count_bounds_and_properties() {
 }
 
 #[test]
+fn info_plans_a_scenes_memory_by_its_largest_tile() {
+    // The committed small room, tiled when asked: the preflight is the largest tile's, under
+    // what a tile runs (the network; the regression per tile when asked for).
+    let room = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/scenes/room-small.laz").to_string_lossy().into_owned();
+    let (code, out, err) = nkrr(&["info", &room, "--tiles", "on"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("one tile at a time, the largest taking in"), "{out}");
+    assert!(out.contains("memory:     meshing") && !out.contains("memory:     tuning"), "{out}");
+    let (code, out, err) = nkrr(&["info", &room, "--tiles", "on", "--tile-regression"]);
+    assert_eq!(code, 0, "{err}");
+    for stage in ["pairs", "tuning", "meshing"] {
+        assert!(out.contains(&format!("memory:     {stage}")), "{stage}: {out}");
+    }
+}
+
+#[test]
 fn info_warns_about_dropped_points_and_extra_properties() {
     let ply = "ply\nformat ascii 1.0\ncomment made by hand\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nproperty float intensity\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0 1\n1 0 0 1\nnan 0 0 1\n0 1 0 1\n3 0 1 3\n";
     let path = temp_file("odd.ply", ply.as_bytes());

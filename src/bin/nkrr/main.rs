@@ -185,13 +185,18 @@ fn info(args: &[String]) -> Result<(), Failure> {
     }
     let scale = nkrr::scene::Scale::from(&scan.units_guess());
     match nkrr::scene::decide(cloud, &settings, scale) {
-        // A scene runs tile by tile, each tile through the network as one small cloud.
-        Some(tiles) => say!("scene:      will {}; each tile takes in at most {} points (with its overlap)", tiles.reason, tiles.largest_tile(&cloud.positions, 1.0)),
+        // A scene runs tile by tile, each tile as one small cloud: the memory is the largest
+        // tile's, under what a tile runs (the page's preflight says the same).
+        Some(tiles) => {
+            let largest = tiles.largest_tile(&cloud.positions, 1.0);
+            say!("scene:      will {}; one tile at a time, the largest taking in {largest} points (with its overlap):", tiles.reason);
+            preflight(largest, false, &nkrr::scene::tile_settings(&settings));
+        }
         None => {
             if let Some(h) = nkrr::scene::hint(cloud, &settings, scale) {
                 say!("scene:      {h}");
             }
-            preflight(cloud, &settings)
+            preflight(cloud.len(), cloud.colors.is_some(), &settings)
         }
     }
     for w in scan.warnings() {
@@ -202,7 +207,7 @@ fn info(args: &[String]) -> Result<(), Failure> {
 
 /// The memory each stage will need on this machine's adapter, and what happens where it does
 /// not fit.
-fn preflight(cloud: &nkrr::cloud::PointCloud, settings: &Settings) {
+fn preflight(points: usize, colours: bool, settings: &Settings) {
     let (limits, adapter) = match nkrr::gpu::Gpu::new_blocking() {
         Ok(gpu) => (nkrr::plan::DeviceFacts::of(&gpu), gpu.info.name.clone()),
         Err(e) => (nkrr::plan::DeviceFacts::webgpu_default(), format!("none ({e}); WebGPU's default limits assumed")),
@@ -212,7 +217,7 @@ fn preflight(cloud: &nkrr::cloud::PointCloud, settings: &Settings) {
         Ok(c) => c,
         Err(e) => return say!("memory:     no estimate: the built-in prior does not load ({e})"),
     };
-    let plan = nkrr::plan::memory_plan(cloud.len(), cloud.colors.is_some(), settings, &config, &limits);
+    let plan = nkrr::plan::memory_plan(points, colours, settings, &config, &limits);
     for line in plan.lines() {
         say!("memory:     {line}");
     }
