@@ -8,7 +8,7 @@ use std::collections::HashMap;
 
 use nkrr::pipeline::Engine;
 use nkrr::scene::Scale;
-use nkrr::settings::{Method, Settings, Tiles};
+use nkrr::settings::{KrrBackend, Method, Settings, Tiles};
 use nkrr::units::Units;
 use nkrr::PointCloud;
 
@@ -259,12 +259,21 @@ fn the_regression_is_tuned_per_tile_and_its_buffers_go_with_each_tile() {
     // take a millimetre.
     assert!(on_ball as f64 > 0.8 * network_ball as f64, "{on_ball} vertices on the ball, the network's {network_ball}");
     assert!(mean < network_mean + 0.001, "mean distance to the truth {mean:.4}, the network's {network_mean:.4}");
-    // Each tile's regression (its training data, the tuning's workspace, the predictor) is
-    // destroyed when the tile is done, not left to the browser's garbage collector.
+    assert!(made.buffers - made.retired <= 8, "{} of {} buffers made for {} tiles were not retired", made.buffers - made.retired, made.buffers, plan.tiles.len());
+
+    // Each tile's regression on the GPU (on this software adapter the default is the CPU
+    // reference; few inducing points and steps: lavapipe tunes slowly) destroys its training
+    // data, the tuning's workspace and the predictor when the tile is done, not left to the
+    // browser's garbage collector.
+    let s = Settings { krr_backend: KrrBackend::Gpu, m: 40, steps: 2, ..settings(Method::Nkrr) };
+    let before = engine.gpu.allocations();
+    let rec = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &room, &s, Scale::default(), &mut |_| true)).unwrap();
+    let made = engine.gpu.allocations().since(&before);
+    assert!(rec.notices.iter().any(|n| n.contains("m = 40")), "{:?}", rec.notices);
+    assert!(made.buffers > 30 * plan.tiles.len() as u64, "{} buffers for {} tiles: the objective did not run on the GPU?", made.buffers, plan.tiles.len());
     assert!(made.buffers - made.retired <= 8, "{} of {} buffers made for {} tiles were not retired", made.buffers - made.retired, made.buffers, plan.tiles.len());
 
     // Cancel stops inside a tile's tuning, not only between tiles.
-    let s = settings(Method::Nkrr);
     let mut calls = 0;
     let cancelled = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &room, &s, Scale::default(), &mut |st| {
         if let nkrr::pipeline::Stage::Tile { done: 0, .. } = st {
