@@ -363,7 +363,9 @@ pub async fn reconstruct(
     if settings.resolution != Settings::default().resolution {
         notices.push(format!("--resolution {} is for one object: a scene's mesh cell follows its tiles ({:.3} of the cloud's units; --detail sets it)", settings.resolution, tiles.cell));
     }
-    if settings.method == Method::Nkrr && !settings.tile_regression {
+    // What a tile runs ([`tile_settings`], which the preflight plans too).
+    let per_tile = tile_settings(settings);
+    if per_tile.method != settings.method {
         notices.push("the tiles use the network's field: --tile-regression tunes the kernel regression on each tile's points, several times slower (docs/scenes.md)".into());
     }
     if settings.surface == crate::settings::Surface::Poisson {
@@ -381,10 +383,9 @@ pub async fn reconstruct(
     // finished pieces over (in the page: to the viewer). The page runs tiles several times
     // slower than native; these say which part.
     let (mut t_network, mut t_blend, mut t_pieces, mut t_regression) = (0.0, 0.0, 0.0, 0.0);
-    let nkrr = tile_settings(settings).method == Method::Nkrr;
     // The regression's inducing points and backend, planned once for the largest tile (a
     // tile with fewer points gets fewer, as one object would: crate::plan::inducing_points).
-    let tile_plan = nkrr.then(|| engine.memory_plan(tiles.largest_tile(&cloud.positions, 1.0), false, &tile_settings(settings)));
+    let tile_plan = (per_tile.method == Method::Nkrr).then(|| engine.memory_plan(tiles.largest_tile(&cloud.positions, 1.0), false, &per_tile));
     if let Some(plan) = &tile_plan {
         // What the plan changes to fit is said, as for one object (it is the regression's m
         // that the tiles take from it).
@@ -474,7 +475,7 @@ pub async fn reconstruct(
     drop(evaluator);
     t_blend -= t_network + t_pieces + t_regression;
     let mut timings = vec![("tiles", now() - t_all), ("network in tiles", t_network), ("blend in tiles", t_blend), ("pieces shown", t_pieces)];
-    if nkrr {
+    if tile_plan.is_some() {
         timings.push(("regression in tiles", t_regression));
         notices.extend(tuned.notice());
     }
@@ -488,7 +489,7 @@ pub async fn reconstruct(
     (mesh, removal) = crate::mesh::postprocess(mesh, &opts);
     timings.push(("mesh", now() - t));
     if mesh.indices.is_empty() {
-        return Err(PipelineError::NoSurface { evaluations, field_max: 0.0, method: settings.method });
+        return Err(PipelineError::NoSurface { evaluations, field_max: 0.0, method: per_tile.method });
     }
     // The same finish as one object's (the last fit, the trim, the simplification), against
     // all the scene's points: its steps measure in point spacings, whatever the units.
