@@ -255,7 +255,7 @@ impl Engine {
                 return Err(PipelineError::Cancelled);
             }
             let t = now();
-            let (chi, flipped) = crate::poisson::from_mesh(&extraction.mesh, &points, crate::poisson::grid_for(opts.domain, opts.resolution, points.len()));
+            let (chi, orientation) = crate::poisson::from_mesh(&extraction.mesh, &points, crate::poisson::grid_for(opts.domain, opts.resolution, points.len()));
             // χ is a cubic lookup, searched coarse to fine as the field is (the dense grid
             // gave the same triangles on the tuning shapes, for twice the memory); the field's
             // evaluation count is kept for the report.
@@ -268,7 +268,7 @@ impl Engine {
                 let notice = format!("the Poisson surface put {:.0} % of its area far from every point (a scan of one side?): the mesh is the field's level set instead (--surface poisson keeps the Poisson surface)", 100.0 * far);
                 return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all });
             }
-            notices.push(chi.notice(flipped, points.len()));
+            notices.push(chi.notice(&orientation, points.len()));
             if settings.method == Method::Nkrr {
                 notices.push("the kernel regression was not tuned: the Poisson surface takes only its normals' signs from the field, the network's as good as the tuned one's (docs/poisson.md); --surface field meshes the tuned field".into());
             }
