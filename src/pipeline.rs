@@ -280,7 +280,9 @@ impl Engine {
 
         let mut mesh = extraction.mesh;
         // Fitted and trimmed in the unit cube, against the points the network saw.
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, None, &mut notices, &mut timings);
+        // The field's level set onto quadrics, the Poisson surface onto planes (mesh::fit::Local).
+        let local = if plan.poisson { crate::mesh::fit::Local::Plane } else { crate::mesh::fit::Local::Quadric };
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, local, None, &mut notices, &mut timings);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }

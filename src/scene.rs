@@ -500,7 +500,8 @@ pub async fn reconstruct(
     // Two layers of a sheet closer than half a cell are one surface: the grid cannot mesh a
     // slab that thin as two.
     let sheet_gap = (0.5 * tiles.cell) as f32;
-    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, Some(sheet_gap), &mut notices, &mut timings);
+    // Planes, as the scenes were measured with (the quadric was chosen on objects' field meshes).
+    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, crate::mesh::fit::Local::Plane, Some(sheet_gap), &mut notices, &mut timings);
     if settings.colors && cloud.colors.is_some() {
         crate::mesh::colour::transfer(&mut mesh, cloud, crate::mesh::colour::DEFAULT_K);
     }

@@ -54,9 +54,11 @@ impl FitReport {
     }
 }
 
-/// The last fit as the pipeline runs it: [`FitOptions::for_cloud`], then [`fit_to_points`].
-pub fn fit_cloud(mesh: &mut Mesh, points: &[[f32; 3]], follow_noise: bool) -> FitReport {
-    let (opts, noise) = FitOptions::for_cloud(points, follow_noise);
+/// The last fit as the pipeline runs it: [`FitOptions::for_cloud`] onto `local` surfaces, then
+/// [`fit_to_points`].
+pub fn fit_cloud(mesh: &mut Mesh, points: &[[f32; 3]], follow_noise: bool, local: Local) -> FitReport {
+    let (mut opts, noise) = FitOptions::for_cloud(points, follow_noise);
+    opts.local = local;
     let usual = FitOptions::for_points(points.len()).k;
     let mut report = fit_to_points(mesh, points, &opts);
     report.widened = (opts.k > usual).then_some((noise, usual));
@@ -76,6 +78,23 @@ pub struct FitOptions {
     /// edges) before it is applied: each plane is fitted to a few noisy points, and moving every
     /// vertex on its own would carry that noise into the surface's normals.
     pub smoothing: usize,
+    /// What each vertex is laid on.
+    pub local: Local,
+}
+
+/// The local surface each vertex is moved onto, fitted to its neighbours.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Local {
+    /// The weighted least-squares plane.
+    Plane,
+    /// A weighted quadric over that plane (`z = a x² + b xy + c y² + f` in its frame): the plane
+    /// of a curved neighbourhood lies inside the curve (its centroid does), and a vertex laid on
+    /// it is pulled in. For the field's level set, which the fit moves most: on the tuning
+    /// shapes (cow, fandisk, suzanne) at 500 points mean CD1 x100 0.781 → 0.758, every shape
+    /// better (report shapes afterwards: 0.768 → 0.731, all three better); the field surface at
+    /// 3k 0.479 → 0.471. Not for the Poisson surface, which passes through the points already:
+    /// there the quadric of 11-20 noisy points follows their noise (10k: 0.301 → 0.318).
+    Quadric,
 }
 
 impl FitOptions {
@@ -89,7 +108,7 @@ impl FitOptions {
         let k = (0.2 * n.sqrt()).round().clamp(8.0, 32.0) as usize;
         let t = ((n.log10() - 500f64.log10()) / (10_000f64.log10() - 500f64.log10())).clamp(0.0, 1.0);
         let smoothing = (10.0 - 7.7 * (n.log10() - 500f64.log10())).round().clamp(0.0, 12.0) as usize;
-        FitOptions { k, scale: (0.45 + 0.1 * t) as f32, max_distance: 3.0, smoothing }
+        FitOptions { k, scale: (0.45 + 0.1 * t) as f32, max_distance: 3.0, smoothing, local: Local::Plane }
     }
 
     /// [`FitOptions::for_points`] for `points`, with the neighbourhood widened where the cloud
@@ -220,7 +239,12 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
         let plane = if within { plane(points, &near, opts.scale as f64) } else { None };
         match plane {
             Some((c, n)) if dot(n, n_mesh.map(f64::from)).abs() >= MIN_COS => {
-                let off = dot(sub(v.map(f64::from), c), n);
+                let mut off = dot(sub(v.map(f64::from), c), n);
+                if opts.local == Local::Quadric {
+                    // Onto the quadric's height at the vertex's foot; the plane where the
+                    // quadric is not defined (points along a line).
+                    off -= quadric_height(points, &near, opts.scale as f64, (c, n), v.map(f64::from)).unwrap_or(0.0);
+                }
                 moves.push(n.map(|x| -off * x));
                 report.moved += 1;
             }
@@ -419,6 +443,42 @@ fn plane(points: &[[f32; 3]], near: &[(f32, u32)], scale: f64) -> Option<([f64; 
     Some((c, n))
 }
 
+/// The height over the plane `(c, n)` at `v`'s foot of the quadric `z = a x² + b xy + c y² + f`
+/// fitted to `near` by weighted least squares (the plane's Gaussian weights) in the plane's frame,
+/// or None where its normal equations are singular.
+fn quadric_height(points: &[[f32; 3]], near: &[(f32, u32)], scale: f64, (c, n): ([f64; 3], [f64; 3]), v: [f64; 3]) -> Option<f64> {
+    let t1 = {
+        let x = cross(n, if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] });
+        let l = dot(x, x).sqrt();
+        x.map(|a| a / l)
+    };
+    let t2 = cross(n, t1);
+    let h2 = (scale * scale * near.last()?.0 as f64).max(f64::MIN_POSITIVE);
+    let mut ata = [0.0f64; 16];
+    let mut atb = [0.0f64; 4];
+    for &(d2, i) in near {
+        let w = (-(d2 as f64) / h2).exp();
+        let q = sub(points[i as usize].map(f64::from), c);
+        let (x, y, z) = (dot(q, t1), dot(q, t2), dot(q, n));
+        let row = [x * x, x * y, y * y, 1.0];
+        for a in 0..4 {
+            for b in 0..4 {
+                ata[a * 4 + b] += w * row[a] * row[b];
+            }
+            atb[a] += w * row[a] * z;
+        }
+    }
+    for a in 0..3 {
+        ata[a * 4 + a] += 1e-30;
+    }
+    let l = crate::krr::linalg::cholesky(&ata, 4, "the fit's quadric").ok()?;
+    let [qa, qb, qc, qf]: [f64; 4] = crate::krr::linalg::cholesky_solve(&l, 4, &atb, 1).try_into().ok()?;
+    let q = sub(v, c);
+    let (x, y) = (dot(q, t1), dot(q, t2));
+    let h = qa * x * x + qb * x * y + qc * y * y + qf;
+    h.is_finite().then_some(h)
+}
+
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -491,7 +551,7 @@ mod tests {
             colors: None,
             indices: vec![0, 1, 2, 1, 3, 2],
         };
-        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0 });
+        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, local: Local::Plane });
         assert_eq!((r.moved, r.kept), (3, 1));
         for v in &mesh.positions[..3] {
             assert!((v[2] - 0.1).abs() < 1e-6, "{v:?}");
@@ -511,6 +571,29 @@ mod tests {
 
     /// `n` points on the unit sphere's surface scaled to radius 0.4 (a cloud the size of the
     /// unit cube), pushed along the radius by Gaussian noise of `sigma`; seeded.
+    /// On a sphere (radius 0.4, 3000 exact points, the fit's 3k neighbourhood) vertices
+    /// hovering 0.01 outside land on the plane of their neighbours, inside the sphere by the
+    /// curve's sag (measured −4.3e-4), and on the quadric within a fraction of that (−7.7e-5).
+    #[test]
+    fn a_quadric_lands_on_the_curve_where_the_plane_falls_inside() {
+        let points = noisy_sphere(3000, 0.0);
+        let opts = FitOptions::for_points(points.len());
+        let dirs = noisy_sphere(200, 0.0);
+        let start: Vec<[f32; 3]> = dirs.iter().map(|d| d.map(|c| c * 0.41 / 0.4)).collect();
+        let normals: Vec<[f32; 3]> = dirs.iter().map(|d| d.map(|c| c / 0.4)).collect();
+        let bias = |local: Local| {
+            let mut mesh = Mesh { positions: start.clone(), normals: normals.clone(), colors: None, indices: Vec::new() };
+            let r = fit_to_points(&mut mesh, &points, &FitOptions { smoothing: 0, local, ..opts });
+            assert_eq!(r.moved, start.len());
+            let radii: Vec<f64> = mesh.positions.iter().map(|v| v.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt()).collect();
+            radii.iter().map(|r| r - 0.4).sum::<f64>() / radii.len() as f64
+        };
+        let (plane, quadric) = (bias(Local::Plane), bias(Local::Quadric));
+        println!("mean radius error: plane {plane:e}, quadric {quadric:e}");
+        assert!(plane < -2e-4, "the plane lies inside the curve: {plane:e}");
+        assert!(quadric.abs() < 0.3 * plane.abs(), "quadric {quadric:e} against plane {plane:e}");
+    }
+
     fn noisy_sphere(n: usize, sigma: f64) -> Vec<[f32; 3]> {
         let mut rng = crate::rng::SplitMix64(7);
         let mut gauss = || rng.normal();
@@ -578,7 +661,7 @@ mod tests {
             colors: None,
             indices: vec![],
         };
-        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0 });
+        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, local: Local::Plane });
         assert_eq!((r.moved, r.kept), (0, 1));
         assert_eq!(mesh.positions[0], [0.01, 0.05, 0.05]);
     }
