@@ -279,10 +279,8 @@ impl Engine {
         }
 
         let mut mesh = extraction.mesh;
-        // Fitted and trimmed in the unit cube, against the points the network saw.
-        // The field's level set onto quadrics, the Poisson surface onto planes (mesh::fit::Local).
-        let local = if plan.poisson { crate::mesh::fit::Local::Plane } else { crate::mesh::fit::Local::Quadric };
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, local, None, &mut notices, &mut timings);
+        // Fitted (mesh::fit::Local) and trimmed in the unit cube, against the points the network saw.
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, crate::mesh::fit::Local::for_object(plan.poisson, points.len()), None, &mut notices, &mut timings);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }

@@ -93,9 +93,29 @@ pub enum Local {
     /// shapes (cow, fandisk, suzanne) at 500 points mean CD1 x100 0.781 → 0.758, every shape
     /// better (report shapes afterwards: 0.768 → 0.731, all three better); the field surface at
     /// 3k 0.479 → 0.471. Not for the Poisson surface, which passes through the points already:
-    /// there the quadric of 11-20 noisy points follows their noise (10k: 0.301 → 0.318).
+    /// there the quadric of 11-20 noisy points follows their noise (10k: 0.301 → 0.318); nor
+    /// from [`QUADRIC_BELOW`] points.
     Quadric,
 }
+
+impl Local {
+    /// What one object's mesh of `points` points is fitted onto: quadrics for the field's level
+    /// set below [`QUADRIC_BELOW`] points, planes for the Poisson surface (`poisson`) and for
+    /// larger clouds, as measured above.
+    pub fn for_object(poisson: bool, points: usize) -> Local {
+        if !poisson && points < QUADRIC_BELOW {
+            Local::Quadric
+        } else {
+            Local::Plane
+        }
+    }
+}
+
+/// The field's level set is fitted onto quadrics below this many points: better at 500 and 3k
+/// (both sets of shapes), mixed at 10k (tuning shapes 0.396 → 0.393 on suzanne alone; report
+/// shapes spot +0.011, teapot +0.018, and spot-10k's NC 0.951 → 0.943, where 20-point planes
+/// sag little against the noise). Between the two sizes measured.
+pub const QUADRIC_BELOW: usize = 5_000;
 
 impl FitOptions {
     /// The neighbourhood for a cloud of `n` points, chosen on three of the six eval shapes (cow,
