@@ -564,7 +564,7 @@ pub fn orient_resolution(resolution: u32) -> u32 {
 pub struct Orientation {
     /// PCA normals the field's mesh turned from their first sign.
     pub by_field: usize,
-    /// Normals the solved surface turned back, over all rounds ([`resign`]).
+    /// Normals the solved surface turned, over all rounds ([`resign`]).
     pub by_surface: usize,
     /// Solves after the first, one a round.
     pub rounds: usize,
@@ -578,7 +578,7 @@ pub const RESIGN_ROUNDS: usize = 8;
 /// How far to each side of a point, in cells of the solve's grid, χ must say the other side is
 /// inside before the point's normal is turned ([`contradicted`]). Chosen on the tuning shapes'
 /// falloff clouds (mean CD1 x100 over cow, fandisk, suzanne: 1.5 cells 0.523, 2 cells 0.520, 3
-/// cells 0.520; before: 0.524), the eval clouds within 0.002 either way. One cell turned points
+/// cells 0.520; before: 0.524; the eval clouds moved by at most 0.004 between these). One cell turned points
 /// on a teapot's spout (a report shape's stray-point cloud, +0.012): a part thinner than the
 /// grid has no inside χ can show, so only a crossing two cells each way is taken as evidence.
 const RESIGN_CELLS: f32 = 2.0;
@@ -840,7 +840,7 @@ mod tests {
 
     /// A patch of normals signed inwards on a sphere (a cap, an eighth of the points: what a
     /// field with a sheet inside gives) is turned back by the solved surface, every normal
-    /// outward at the end and no other turned; with the patch's normals right nothing is turned.
+    /// outward at the end and no other turned; run again on the mended normals, nothing is.
     #[test]
     fn resign_turns_a_wrong_patch_back() {
         let grid = Grid::over(([-0.55; 3], [0.55; 3]), 40);

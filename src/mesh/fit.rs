@@ -589,8 +589,6 @@ mod tests {
         assert_eq!([at(500), at(3000), at(10_000), at(1_000_000)], [(8, 10), (11, 4), (20, 0), (32, 0)]);
     }
 
-    /// `n` points on the unit sphere's surface scaled to radius 0.4 (a cloud the size of the
-    /// unit cube), pushed along the radius by Gaussian noise of `sigma`; seeded.
     /// On a sphere (radius 0.4, 3000 exact points, the fit's 3k neighbourhood) vertices
     /// hovering 0.01 outside land on the plane of their neighbours, inside the sphere by the
     /// curve's sag (measured −4.3e-4), and on the quadric within a fraction of that (−7.7e-5).
@@ -614,6 +612,8 @@ mod tests {
         assert!(quadric.abs() < 0.3 * plane.abs(), "quadric {quadric:e} against plane {plane:e}");
     }
 
+    /// `n` points on the unit sphere's surface scaled to radius 0.4 (a cloud the size of the
+    /// unit cube), pushed along the radius by Gaussian noise of `sigma`; seeded.
     fn noisy_sphere(n: usize, sigma: f64) -> Vec<[f32; 3]> {
         let mut rng = crate::rng::SplitMix64(7);
         let mut gauss = || rng.normal();
