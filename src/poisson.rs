@@ -640,7 +640,7 @@ pub fn from_mesh(field_mesh: &crate::mesh::Mesh, points: &[[f32; 3]], grid: Grid
 fn resign(grid: Grid, points: &[[f32; 3]], normals: &mut [[f32; 3]], areas: &[f64], opts: &Options) -> (Solution, (usize, usize)) {
     let mut solution = solve(grid, points, normals, areas, opts);
     let mut turned = vec![false; points.len()];
-    let (mut count, mut rounds) = (0, 0);
+    let mut rounds = 0;
     while rounds < RESIGN_ROUNDS {
         let wrong: Vec<usize> = contradicted(&solution, points, normals).into_iter().filter(|&i| !turned[i]).collect();
         if wrong.is_empty() {
@@ -650,13 +650,12 @@ fn resign(grid: Grid, points: &[[f32; 3]], normals: &mut [[f32; 3]], areas: &[f6
             normals[i] = normals[i].map(|c| -c);
             turned[i] = true;
         }
-        count += wrong.len();
         rounds += 1;
         // The old χ goes before the new one is made: one node vector less at the peak.
         drop(solution);
         solution = solve(grid, points, normals, areas, opts);
     }
-    (solution, (count, rounds))
+    (solution, (turned.iter().filter(|&&t| t).count(), rounds))
 }
 
 /// The points whose normal χ contradicts: [`RESIGN_CELLS`] cells ahead along the normal χ says
