@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# One call on a lent GPU machine (the device tool's `run`), three parts inside one time budget:
+#   1. the GPU benchmark's native half (scripts/gpu_bench.sh --no-page: the machine has no Node or
+#      Chromium; docs/speed.md),
+#   2. `nkrr eval` of the eval and falloff clouds on the GPU, to hold its meshes against the same
+#      commit's on lavapipe (the kernels' only check on real hardware so far),
+#   3. the second prior's recipe (training/train_v2.sh) on the GPU for what time is left.
+# Each part has its own limit, so one failing leaves the others their time.
+#
+# Here, once: cargo build --release --bin nkrr; the .gpubench/ pack (nkrr stripped, clouds/ as
+# scripts/gpu_bench.sh --pack lays them out, eval/ with NAME.obj and NAME-SIZE.ply), .gl/ (the
+# Vulkan loader's debs, docs/speed.md), training/cache_v2/heldout_32.npz (python -c 'from
+# training.data import heldout_set; heldout_set(32, cache="training/cache_v2")'). Then:
+#   run(command="BUDGET_S=560 bash scripts/gpu_session.sh 2>&1 | tee $OUT/log.txt",
+#       carry=[".gpubench", ".gl", "training/cache_v2"], timeout_s=590)
+# Writes OUT/gpu-bench.{md,json}, OUT/eval-gpu.{md,json}, OUT/v2gpu.tar (the run: ckpt.pt,
+# metrics.jsonl, its log); export and compare here (training/export.py, training/compare.py).
+set -uo pipefail
+cd "$(dirname "$0")/.."
+: "${OUT:?OUT: the folder that comes back}"
+T0=$(date +%s)
+BUDGET=${BUDGET_S:-560}
+left() { echo $(( BUDGET - ($(date +%s) - T0) )); }
+stamp() { echo "== $(date -u +%T) +$(( $(date +%s) - T0 ))s: $*"; }
+
+if [ -d .gl ] && [ "$(id -u)" = 0 ] && ! ldconfig -p | grep -q libvulkan; then
+    for f in .gl/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+fi
+icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+[ -f "$icd" ] && export VK_DRIVER_FILES=$icd
+egl=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+[ -f "$egl" ] && export __EGL_VENDOR_LIBRARY_FILENAMES=$egl
+nvidia-smi -L; nproc
+NKRR=.gpubench/nkrr
+stamp "adapter"; timeout 30 "$NKRR" gpu
+
+stamp "1. benchmark (native half)"
+timeout 170 bash scripts/gpu_bench.sh --no-page --deadline-s 150 --out "$OUT" ${BENCH_ARGS:-}
+stamp "1. done ($?)"
+
+stamp "2. eval on the GPU"
+timeout 100 "$NKRR" eval .gpubench/eval --sizes ${EVAL_SIZES:-500,3k,10k,falloff} --methods nkrr --out "$OUT/eval-gpu" >/dev/null
+stamp "2. done ($?)"
+
+# 3. Training: what is left, less 80 s for the start (pool, held-out IoU) and the end.
+MIN=$(python3 -c "print(round(max(0.5, ($(left) - 80) / 60), 2))")
+stamp "3. training ${MIN} min"
+NAME=v2gpu
+timeout $(( $(left) - 5 )) env PYTHON=python3 bash training/train_v2.sh "$MIN" "$NAME"
+stamp "3. done ($?)"
+tar -cf "$OUT/$NAME.tar" -C training/runs "$NAME" "$NAME.log" 2>/dev/null
+ls -la "$OUT"
+stamp "end"
