@@ -15,6 +15,14 @@ def runs(path, method):
     return {(r["shape"], r["size"]): r for r in data["runs"] if r["method"] == method}
 
 
+def size_key(size):
+    """Point counts (500, 3k) in order, then the harder set's named clouds (falloff, noise) by name."""
+    try:
+        return (0, float(size.replace("k", "e3")), "")
+    except ValueError:
+        return (1, 0.0, size)
+
+
 def main(argv):
     method = "nkrr"
     if "--method" in argv:
@@ -24,7 +32,7 @@ def main(argv):
     files = argv
     tables = [runs(f, method) for f in files]
     base = tables[0]
-    sizes = sorted({s for (_, s) in base}, key=lambda s: float(s.replace("k", "e3")))
+    sizes = sorted({s for (_, s) in base}, key=size_key)
     for size in sizes:
         keys = sorted(k for k in base if k[1] == size)
         print(f"## {size} ({len(keys)} clouds: {', '.join(k[0] for k in keys)})")

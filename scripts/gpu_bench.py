@@ -34,8 +34,10 @@ from bench import cloud_path as bench_cloud, parse_summary  # noqa: E402  (the C
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 POINTS = {"500": 500, "3k": 3000, "10k": 10000, "100k": 100000}
-# Columns, in pipeline order: the page's worker adds setup and glb around the shared stages.
-STAGES = ["setup", "outliers", "features", "pairs", "tuning", "mesh", "fit", "glb"]
+# Columns, in pipeline order: the page's worker adds setup and glb around the shared stages. A
+# stage reported by the CLI or the page and missing here still gets a column (`columns`), so a
+# new stage never silently drops out of the table's times.
+STAGES = ["setup", "outliers", "features", "pairs", "tuning", "mesh", "poisson", "fit", "glb"]
 DATA_PREFIX = "target/results/data/"
 PLAYWRIGHT = os.path.join(ROOT, "node_modules/playwright-core")
 
@@ -143,23 +145,35 @@ def short(adapter):
     return (adapter or "?").split(" (")[0].split(":")[0]
 
 
+def columns(rows):
+    """STAGES, then any other stage some run reported, in the order first seen."""
+    cols = list(STAGES)
+    for r in rows:
+        for res in (r["native"], r["page"]):
+            for k in res.get("stages", {}) if res.get("ok") else ():
+                if k not in cols:
+                    cols.append(k)
+    return cols
+
+
 def table(rows, info):
+    cols = columns(rows)
     lines = [
         f"Native adapter: {info['native_adapter']}  ",
         f"Page adapter: {info['page_adapter'] or '-'}{' (software)' if info.get('page_software') else ''}  ",
         f"Machine: {info['cores']} cores; GPU mode: {info['gpu']}{' (dry run: not a GPU measurement)' if info['dry_run'] else ''}; "
         f"deadline {info['deadline_s']:.0f} s, used {info['elapsed_s']:.0f} s",
         "",
-        f"| points | method | run | adapter | {' | '.join(STAGES)} | wall s | page/native |",
-        "|---" * (len(STAGES) + 6) + "|",
+        f"| points | method | run | adapter | {' | '.join(cols)} | wall s | page/native |",
+        "|---" * (len(cols) + 6) + "|",
     ]
     for r in rows:
         nat = r["native"]
         for half, res in (("native", nat), ("page", r["page"])):
             if not res.get("ok"):
-                lines.append(f"| {r['size']} | {r['method']} | {half} | - | {' | '.join('-' for _ in STAGES)} | - | {res.get('note', 'not run')} |")
+                lines.append(f"| {r['size']} | {r['method']} | {half} | - | {' | '.join('-' for _ in cols)} | - | {res.get('note', 'not run')} |")
                 continue
-            st = " | ".join(fmt(res["stages"].get(k)) for k in STAGES)
+            st = " | ".join(fmt(res["stages"].get(k)) for k in cols)
             adapter = info["native_adapter"] if half == "native" else page_adapter_name(res)
             ratio = "" if half == "native" else (f"{res['wall_s'] / nat['wall_s']:.2f}x" if nat.get("ok") else "-")
             lines.append(f"| {r['size']} | {r['method']} | {half} | {short(adapter)} | {st} | {res['wall_s']:.2f} | {ratio} |")

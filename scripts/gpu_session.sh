@@ -4,8 +4,11 @@
 #      Chromium; docs/speed.md),
 #   2. `nkrr eval` of the eval and falloff clouds on the GPU, to hold its meshes against the same
 #      commit's on lavapipe (the kernels' only check on real hardware so far),
-#   3. the second prior's recipe (training/train_v2.sh) on the GPU for what time is left.
-# Each part has its own limit, so one failing leaves the others their time.
+#   3. the second prior's recipe (training/train_v2.sh) on the GPU for what time is left,
+#   4. (PARTS=scene) each .gpubench/scene/*.laz reconstructed as a scene (tiles on): wall time,
+#      the process's peak memory, stage times; OUT/NAME.glb for clouds under 100k points.
+# PARTS (default "bench eval train") picks them. Each part has its own limit, so one failing
+# leaves the others their time.
 #
 # Here, once: cargo build --release --bin nkrr; the .gpubench/ pack (nkrr stripped, clouds/ as
 # scripts/gpu_bench.sh --pack lays them out, eval/ with NAME.obj and NAME-SIZE.ply), .gl/ (the
@@ -34,15 +37,39 @@ egl=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
 nvidia-smi -L; nproc
 NKRR=.gpubench/nkrr
 stamp "adapter"; timeout 30 "$NKRR" gpu
+PARTS=${PARTS:-bench eval train}
+want() { case " $PARTS " in *" $1 "*) return 0;; esac; return 1; }
+# A command's wall time and peak resident memory (the device machine has no /usr/bin/time).
+measured() {
+    python3 -c 'import resource, subprocess, sys, time
+t = time.time(); rc = subprocess.run(sys.argv[1:]).returncode
+print(f"exit {rc}, wall {time.time() - t:.1f} s, peak RSS {resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024:.0f} MiB", flush=True)' "$@"
+}
 
-stamp "1. benchmark (native half)"
-timeout 170 bash scripts/gpu_bench.sh --no-page --deadline-s 150 --out "$OUT" ${BENCH_ARGS:-}
-stamp "1. done ($?)"
+if want bench; then
+    stamp "1. benchmark (native half)"
+    timeout 170 bash scripts/gpu_bench.sh --no-page --deadline-s 150 --out "$OUT" ${BENCH_ARGS:-}
+    stamp "1. done ($?)"
+fi
 
-stamp "2. eval on the GPU"
-timeout 100 "$NKRR" eval .gpubench/eval --sizes ${EVAL_SIZES:-500,3k,10k,falloff} --methods nkrr --out "$OUT/eval-gpu" >/dev/null
-stamp "2. done ($?)"
+if want eval; then
+    stamp "2. eval on the GPU"
+    timeout 100 "$NKRR" eval .gpubench/eval --sizes ${EVAL_SIZES:-500,3k,10k,falloff} --methods nkrr --out "$OUT/eval-gpu" >/dev/null
+    stamp "2. done ($?)"
+fi
 
+if want scene; then
+    for laz in .gpubench/scene/*.laz; do
+        name=$(basename "$laz" .laz)
+        out=/tmp/$name.glb
+        [ "$(stat -c %s "$laz")" -lt 1000000 ] && out=$OUT/$name.glb
+        stamp "4. scene $name"
+        measured timeout $(( $(left) - 10 )) "$NKRR" reconstruct "$laz" -o "$out" --tiles on
+    done
+    stamp "4. done"
+fi
+
+want train || { ls -la "$OUT"; stamp "end"; exit 0; }
 # 3. Training: what is left, less 80 s for the start (pool, held-out IoU) and the end.
 MIN=$(python3 -c "print(round(max(0.5, ($(left) - 80) / 60), 2))")
 stamp "3. training ${MIN} min"

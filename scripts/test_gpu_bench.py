@@ -14,7 +14,7 @@ import gpu_bench  # noqa: E402
 FAKE_NKRR = """#!/bin/sh
 if [ "$1" = gpu ]; then echo "Fake H200 (DiscreteGpu, Vulkan, driver NVIDIA 580); max buffer 1 GiB"; exit 0; fi
 echo "progress" >&2
-echo "$4: 10 vertices, 16 triangles, watertight: yes; outliers 0.01s, features 0.20s, pairs 0.05s, tuning 0.40s, mesh 0.30s, fit 0.02s (total 1.10s); 99 field evaluations"
+echo "$4: 10 vertices, 16 triangles, watertight: yes; outliers 0.01s, features 0.20s, pairs 0.05s, tuning 0.40s, mesh 0.30s, poisson 0.25s, fit 0.02s, widgets 0.03s (total 1.10s); 99 field evaluations"
 """
 # Stands in for `node scripts/gpu_bench_page.mjs …`: one JSON line, as that script prints.
 FAKE_NODE = """#!/usr/bin/env python3
@@ -65,8 +65,10 @@ def test_table_and_json(setup, capsys):
     rows = rows_of(md)
     assert len(rows) == 3 * 2 * 2  # sizes x methods x (native, page)
     assert all(r.count("|") == ncols for r in rows), md
-    assert "| 500 | network | native | Fake H200 | - | 0.01 | 0.20 | 0.05 | 0.40 | 0.30 | 0.02 | - |" in md
-    assert "| 500 | network | page | nvidia hopper | 0.10 | 0.01 | 0.30 | - | - | 1.20 | 0.05 | 0.02 | 2.00 |" in md
+    # Every stage the CLI reports has a column: a stage the table does not know ("widgets") too.
+    assert header.endswith("| fit | glb | widgets | wall s | page/native |"), header
+    assert "| 500 | network | native | Fake H200 | - | 0.01 | 0.20 | 0.05 | 0.40 | 0.30 | 0.25 | 0.02 | - | 0.03 |" in md
+    assert "| 500 | network | page | nvidia hopper | 0.10 | 0.01 | 0.30 | - | - | 1.20 | - | 0.05 | 0.02 | - | 2.00 |" in md
     # The 3k cloud is the committed eval cloud (tests/data/eval), found without the clouds folder.
     assert "| 3k | nkrr | native | Fake H200 |" in md
     data = json.loads((out / "gpu-bench.json").read_text())
