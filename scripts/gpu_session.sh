@@ -5,8 +5,9 @@
 #   2. `nkrr eval` of the eval and falloff clouds on the GPU, to hold its meshes against the same
 #      commit's on lavapipe (the kernels' only check on real hardware so far),
 #   3. the second prior's recipe (training/train_v2.sh) on the GPU for what time is left,
-#   4. (PARTS=scene) each .gpubench/scene/*.laz reconstructed as a scene (tiles on): wall time,
-#      the process's peak memory, stage times; OUT/NAME.glb for clouds under 100k points.
+#   4. (PARTS=scene) each .gpubench/scene/*.laz reconstructed as a scene (tiles on) by each
+#      build in SCENE_BINS (default .gpubench/nkrr): wall time, the process's peak memory, stage
+#      times; OUT/NAME-BUILD.glb for clouds under 100k points.
 # PARTS (default "bench eval train") picks them. Each part has its own limit, so one failing
 # leaves the others their time.
 #
@@ -59,12 +60,15 @@ if want eval; then
 fi
 
 if want scene; then
+    # SCENE_BINS: several builds in turn on each scene (before and after a change, same run).
     for laz in .gpubench/scene/*.laz; do
         name=$(basename "$laz" .laz)
-        out=/tmp/$name.glb
-        [ "$(stat -c %s "$laz")" -lt 1000000 ] && out=$OUT/$name.glb
-        stamp "4. scene $name"
-        measured timeout $(( $(left) - 10 )) "$NKRR" reconstruct "$laz" -o "$out" --tiles on
+        for bin in ${SCENE_BINS:-$NKRR}; do
+            out=/tmp/$name.glb
+            [ "$(stat -c %s "$laz")" -lt 1000000 ] && out=$OUT/$name-$(basename "$bin").glb
+            stamp "4. scene $name, $bin"
+            measured timeout $(( $(left) - 10 )) "$bin" reconstruct "$laz" -o "$out" --tiles on
+        done
     done
     stamp "4. done"
 fi

@@ -18,6 +18,7 @@ pub mod mesh;
 pub mod net;
 pub mod orient;
 pub mod outliers;
+pub(crate) mod par;
 pub mod pipeline;
 pub mod plan;
 pub mod poisson;

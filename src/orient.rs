@@ -45,22 +45,28 @@ pub fn neighbourhoods(points: &[[f32; 3]], k: usize, rank: usize) -> Neighbourho
     let reach = k.max(rank + 1);
     let k = k.min(points.len());
     let rank = rank.clamp(1, points.len().saturating_sub(1).max(1));
-    let mut found = Vec::with_capacity(reach);
-    let mut near = Vec::with_capacity(points.len() * k);
-    let mut spacing = Vec::with_capacity(points.len());
-    for &p in points {
-        index.k_nearest(p, reach, &mut found);
-        near.extend(found[..k].iter().map(|&(_, j)| j));
-        spacing.push(found.get(rank).map_or(0.0, |&(d2, _)| d2.sqrt()));
-    }
+    // One (neighbours, spacings) pair per range of points, the ranges split over the cores.
+    let parts = crate::par::map_ranges(points.len(), |range| {
+        let mut found = Vec::with_capacity(reach);
+        let mut near = Vec::with_capacity(range.len() * k);
+        let mut spacing = Vec::with_capacity(range.len());
+        for &p in &points[range] {
+            index.k_nearest(p, reach, &mut found);
+            near.extend(found[..k].iter().map(|&(_, j)| j));
+            spacing.push(found.get(rank).map_or(0.0, |&(d2, _)| d2.sqrt()));
+        }
+        vec![(near, spacing)]
+    });
+    let near = parts.iter().flat_map(|(n, _)| n).copied().collect();
+    let spacing = parts.iter().flat_map(|(_, s)| s).copied().collect();
     Neighbourhoods { k, near, spacing }
 }
 
 /// Unit normals (unoriented) of each point: the least-spread direction of its neighbourhood
 /// (itself included); (0, 0, 1) where it does not define one.
 pub fn pca_normals(points: &[[f32; 3]], nb: &Neighbourhoods) -> Vec<[f32; 3]> {
-    (0..points.len())
-        .map(|i| {
+    crate::par::map_ranges(points.len(), |range| {
+        range.map(|i| {
             let near = nb.of(i);
             let n = near.len() as f64;
             let mut c = [0.0f64; 3];
@@ -85,6 +91,7 @@ pub fn pca_normals(points: &[[f32; 3]], nb: &Neighbourhoods) -> Vec<[f32; 3]> {
             }
         })
         .collect()
+    })
 }
 
 /// The two points across the surface at each input point: `2 i` is p + δ_i n_i, `2 i + 1` is

@@ -29,37 +29,40 @@ pub fn neighbour_distances(points: &[[f32; 3]], ks: &[usize]) -> Vec<Vec<f32>> {
     let ks: Vec<usize> = ks.iter().map(|&k| k.clamp(1, n - 1)).collect();
     let k = ks.iter().copied().max().unwrap_or(1);
     let grid = Grid::new(points);
-    let mut best: Vec<f32> = Vec::with_capacity(k + 1); // squared distances, sorted ascending
-    let mut out = vec![Vec::with_capacity(n); ks.len()];
-    for (i, p) in points.iter().enumerate() {
-        best.clear();
-        let c = grid.cell_of(p);
-        let mut ring = 0i64;
-        loop {
-            grid.for_ring(c, ring, |j| {
-                if j as usize == i {
-                    return;
+    // For each point, its distance to each rank in turn; the points split over the cores.
+    let flat: Vec<f32> = crate::par::map_ranges(n, |range| {
+        let mut best: Vec<f32> = Vec::with_capacity(k + 1); // squared distances, sorted ascending
+        let mut out = Vec::with_capacity(range.len() * ks.len());
+        for i in range {
+            let p = &points[i];
+            best.clear();
+            let c = grid.cell_of(p);
+            let mut ring = 0i64;
+            loop {
+                grid.for_ring(c, ring, |j| {
+                    if j as usize == i {
+                        return;
+                    }
+                    let q = points[j as usize];
+                    let d2 = (0..3).map(|a| (p[a] - q[a]) * (p[a] - q[a])).sum::<f32>();
+                    if best.len() < k || d2 < best[k - 1] {
+                        let at = best.partition_point(|&b| b <= d2);
+                        best.insert(at, d2);
+                        best.truncate(k);
+                    }
+                });
+                // Every cell beyond this ring is at least `ring * h` away from p's cell walls.
+                let reach = ring as f32 * grid.h;
+                if (best.len() == k && best[k - 1] <= reach * reach) || ring > grid.max_ring() {
+                    break;
                 }
-                let q = points[j as usize];
-                let d2 = (0..3).map(|a| (p[a] - q[a]) * (p[a] - q[a])).sum::<f32>();
-                if best.len() < k || d2 < best[k - 1] {
-                    let at = best.partition_point(|&b| b <= d2);
-                    best.insert(at, d2);
-                    best.truncate(k);
-                }
-            });
-            // Every cell beyond this ring is at least `ring * h` away from p's cell walls.
-            let reach = ring as f32 * grid.h;
-            if (best.len() == k && best[k - 1] <= reach * reach) || ring > grid.max_ring() {
-                break;
+                ring += 1;
             }
-            ring += 1;
+            out.extend(ks.iter().map(|&kr| best.get(kr - 1).copied().unwrap_or(0.0).sqrt()));
         }
-        for (o, &kr) in out.iter_mut().zip(&ks) {
-            o.push(best.get(kr - 1).copied().unwrap_or(0.0).sqrt());
-        }
-    }
-    out
+        out
+    });
+    (0..ks.len()).map(|r| flat.iter().skip(r).step_by(ks.len()).copied().collect()).collect()
 }
 
 /// How the extra points P~ are drawn around the input points (see [`upsample`]).

@@ -294,30 +294,54 @@ impl TilePlan {
         [(k % r1) as i64, (k / r1 % r1) as i64, (k / (r1 * r1)) as i64]
     }
 
-    /// The band's nodes near `points` that `tile` weighs (its cube with the overlap), as keys.
+    /// The band's nodes near `points` that `tile` weighs (its cube with the overlap), as keys,
+    /// ascending. Marked in a bitmap over the tile's nodes and read back in key order: sorting
+    /// every point's 216 keys (two million for a tile of 10k points) was most of a scene's CPU
+    /// time on a real GPU (docs/scenes.md, "On a GPU"). Points sharing a cell mark it once.
     fn band_nodes(&self, tile: [i64; 3], points: &[[f32; 3]]) -> Vec<u64> {
         let r = self.resolution as i64;
         let per = TILE_CELLS as i64;
         let o = overlap_cells();
         // Nodes strictly inside the overlap's outer border (weight above 0).
-        let lo = tile.map(|t| t * per - o + 1);
-        let hi = tile.map(|t| (t + 1) * per + o - 1);
-        let mut keys = Vec::new();
+        let lo = tile.map(|t| (t * per - o + 1).max(0));
+        let hi = tile.map(|t| ((t + 1) * per + o - 1).min(r));
+        if (0..3).any(|a| lo[a] > hi[a]) {
+            return Vec::new();
+        }
+        let dims = [0, 1, 2].map(|a| (hi[a] - lo[a] + 1) as usize);
+        let node = |n: [i64; 3]| (((n[2] - lo[2]) as usize * dims[1] + (n[1] - lo[1]) as usize) * dims[0]) + (n[0] - lo[0]) as usize;
+        // The cells whose band reaches the box: BAND + 1 nodes below a cell's, BAND above.
+        let (clo, chi) = (lo.map(|l| l - BAND - 1), hi.map(|h| h + BAND));
+        let cdims = [0, 1, 2].map(|a| (chi[a] - clo[a] + 1) as usize);
+        let mut cell_seen = vec![false; cdims.iter().product()];
+        let mut near = vec![false; dims.iter().product()];
         for p in points {
             let c = [0, 1, 2].map(|a| (((p[a] as f64 - self.origin[a]) / self.cell).floor() as i64).clamp(0, r - 1));
-            for dz in -BAND..=BAND + 1 {
-                for dy in -BAND..=BAND + 1 {
-                    for dx in -BAND..=BAND + 1 {
-                        let n = [c[0] + dx, c[1] + dy, c[2] + dz];
-                        if (0..3).all(|a| n[a] >= lo[a].max(0) && n[a] <= hi[a].min(r)) {
-                            keys.push(self.node_key(n));
-                        }
-                    }
+            if (0..3).any(|a| c[a] < clo[a] || c[a] > chi[a]) {
+                continue;
+            }
+            let ci = ((c[2] - clo[2]) as usize * cdims[1] + (c[1] - clo[1]) as usize) * cdims[0] + (c[0] - clo[0]) as usize;
+            if std::mem::replace(&mut cell_seen[ci], true) {
+                continue;
+            }
+            let from = [0, 1, 2].map(|a| (c[a] - BAND).max(lo[a]));
+            let to = [0, 1, 2].map(|a| (c[a] + BAND + 1).min(hi[a]));
+            for z in from[2]..=to[2] {
+                for y in from[1]..=to[1] {
+                    let row = node([from[0], y, z]);
+                    near[row..=row + (to[0] - from[0]) as usize].fill(true);
                 }
             }
         }
-        keys.sort_unstable();
-        keys.dedup();
+        let mut keys = Vec::new();
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                let row = node([lo[0], y, z]);
+                for (i, _) in near[row..row + dims[0]].iter().enumerate().filter(|(_, &m)| m) {
+                    keys.push(self.node_key([lo[0] + i as i64, y, z]));
+                }
+            }
+        }
         keys
     }
 }
@@ -454,9 +478,7 @@ pub async fn reconstruct(
             evaluations += values.len() as u64;
             // The evaluator is rebound to the next tile's planes before it decodes again.
             engine.gpu.retire([planes.buffer]);
-            for (&k, &v) in nodes.iter().zip(&values) {
-                sweep.add(*tile, k, v);
-            }
+            sweep.add_tile(*tile, &nodes, &values);
         }
         let new = sweep.tile_done(*tile);
         if !new.is_empty() {
@@ -609,20 +631,37 @@ impl<'a> Sweep<'a> {
         n.map(|c| c.div_euclid(BLOCK))
     }
 
-    /// Adds `tile`'s value `v` at node `key`, weighed by the tile's blend weight there.
-    fn add(&mut self, tile: [i64; 3], key: u64, v: f32) {
-        let n = self.plan.node_of_key(key);
-        let w = self.plan.weight(tile, n.map(|c| c as f64 * self.plan.cell)) as f32;
-        if w > 0.0 && v.is_finite() {
-            let e = self.blocks.entry(Self::block_of(n)).or_default().entry(key).or_insert_with(|| {
+    /// Adds `tile`'s values at its band's nodes (`nodes` ascending, as
+    /// [`TilePlan::band_nodes`] gives them), each weighed by the tile's blend weight there.
+    /// Consecutive nodes mostly fall in one block, whose map is then looked up once for the run.
+    fn add_tile(&mut self, tile: [i64; 3], nodes: &[u64], values: &[f32]) {
+        let mut open: Option<([i64; 3], KeyMap<(f32, f32)>)> = None;
+        for (&key, &v) in nodes.iter().zip(values) {
+            let n = self.plan.node_of_key(key);
+            let w = self.plan.weight(tile, n.map(|c| c as f64 * self.plan.cell)) as f32;
+            if !(w > 0.0 && v.is_finite()) {
+                continue;
+            }
+            let b = Self::block_of(n);
+            if open.as_ref().map(|(ob, _)| *ob) != Some(b) {
+                if let Some((ob, map)) = open.take() {
+                    self.blocks.insert(ob, map);
+                }
+                open = Some((b, self.blocks.remove(&b).unwrap_or_default()));
+            }
+            let map = open.as_mut().map(|(_, m)| m).expect("opened above");
+            let e = map.entry(key).or_insert_with(|| {
                 self.held += 1;
                 self.report.nodes += 1;
                 (0.0, 0.0)
             });
             e.0 += w * v;
             e.1 += w;
-            self.report.peak_nodes = self.report.peak_nodes.max(self.held);
         }
+        if let Some((ob, map)) = open {
+            self.blocks.insert(ob, map);
+        }
+        self.report.peak_nodes = self.report.peak_nodes.max(self.held);
     }
 
     /// Every tile that can weigh a node of block `b` (or one cell above it) is done, or holds
@@ -675,7 +714,8 @@ impl<'a> Sweep<'a> {
     fn mesh_block(&mut self, c: [i64; 3]) {
         let r = self.plan.resolution;
         let mut found: Vec<([u32; 3], [f32; 8])> = Vec::new();
-        for &k in self.blocks[&c].keys() {
+        let own = &self.blocks[&c];
+        for &k in own.keys() {
             let n = self.plan.node_of_key(k);
             if n.iter().any(|&x| x >= r as i64) {
                 continue;
@@ -683,7 +723,9 @@ impl<'a> Sweep<'a> {
             let mut v = [0.0f32; 8];
             let all = (0..8).all(|corner| {
                 let at = [n[0] + (corner & 1) as i64, n[1] + (corner >> 1 & 1) as i64, n[2] + (corner >> 2 & 1) as i64];
-                self.value(at).map(|x| v[corner] = x).is_some()
+                // Most corners are in this block: its map is at hand, the others' are looked up.
+                let value = if Self::block_of(at) == c { own.get(&self.plan.node_key(at)).map(|(wf, w)| wf / w) } else { self.value(at) };
+                value.map(|x| v[corner] = x).is_some()
             });
             let inside = v.iter().filter(|&&x| x > 0.0).count();
             if all && inside > 0 && inside < 8 {
@@ -754,6 +796,42 @@ mod tests {
         }
     }
 
+    /// [`TilePlan::band_nodes`] against its definition: every node within the band of a
+    /// point's cell (BAND below, BAND + 1 above) that the tile weighs, sorted and unique; for
+    /// tiles inside the grid, at its low and high borders, and points straying past the tile.
+    #[test]
+    fn band_nodes_are_the_nodes_around_each_points_cell_that_the_tile_weighs() {
+        let plan = TilePlan { size: 1.0, cell: 1.0 / 64.0, origin: [0.0; 3], resolution: 192, tiles: Vec::new(), reason: String::new() };
+        let reference = |tile: [i64; 3], points: &[[f32; 3]]| {
+            let (r, per, o) = (plan.resolution as i64, TILE_CELLS as i64, overlap_cells());
+            let lo = tile.map(|t| t * per - o + 1);
+            let hi = tile.map(|t| (t + 1) * per + o - 1);
+            let mut keys = Vec::new();
+            for p in points {
+                let c = [0, 1, 2].map(|a| (((p[a] as f64 - plan.origin[a]) / plan.cell).floor() as i64).clamp(0, r - 1));
+                for d in boxed([-BAND; 3], [BAND + 1; 3]) {
+                    let n = [0, 1, 2].map(|a| c[a] + d[a]);
+                    if (0..3).all(|a| n[a] >= lo[a].max(0) && n[a] <= hi[a].min(r)) {
+                        keys.push(plan.node_key(n));
+                    }
+                }
+            }
+            keys.sort_unstable();
+            keys.dedup();
+            keys
+        };
+        let mut rng = crate::rng::SplitMix64(7);
+        for tile in [[1, 1, 1], [0, 0, 0], [2, 2, 2], [0, 2, 1]] {
+            // Points in the tile's cube with its overlap and a little past it, some sharing cells.
+            let mut pts: Vec<[f32; 3]> = (0..3000).map(|_| tile.map(|t| (t as f64 - 0.4 + 1.8 * rng.unit()) as f32)).collect();
+            pts.extend(pts[..500].to_vec());
+            let got = plan.band_nodes(tile, &pts);
+            assert!(!got.is_empty());
+            assert_eq!(got, reference(tile, &pts), "tile {tile:?}");
+        }
+        assert!(plan.band_nodes([1, 1, 1], &[]).is_empty());
+    }
+
     /// A wavy strip of floor 6 m long through [`Sweep`] against meshing the whole blend at once
     /// (the blend accumulated the same way, marching cubes over every cell): the same
     /// triangles, while the sweep holds only a few slices of the strip's nodes at a time.
@@ -777,9 +855,10 @@ mod tests {
         let mut pieces = 0;
         for ((t, _), ids) in plan.tiles.iter().zip(plan.members(&pts)) {
             let mine: Vec<[f32; 3]> = ids.iter().map(|&i| pts[i as usize]).collect();
-            for k in plan.band_nodes(*t, &mine) {
+            let nodes = plan.band_nodes(*t, &mine);
+            sweep.add_tile(*t, &nodes, &nodes.iter().map(|&k| field(plan.node_of_key(k))).collect::<Vec<_>>());
+            for k in nodes {
                 let n = plan.node_of_key(k);
-                sweep.add(*t, k, field(n));
                 let w = plan.weight(*t, n.map(|c| c as f64 * plan.cell)) as f32;
                 if w > 0.0 {
                     let e = whole.entry(k).or_insert((0.0, 0.0));

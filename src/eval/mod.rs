@@ -46,7 +46,7 @@
 //! varies by about 0.2 %, F and NC in the fourth decimal. `tests/metrics.rs` pins this on a
 //! perturbed copy of spot.
 //!
-//! Natively, nearest-neighbour queries and inside tests run on all cores (`std::thread::scope`);
+//! Natively, nearest-neighbour queries and inside tests run on all cores (`crate::par`);
 //! the result does not depend on the thread count.
 
 mod inside;
@@ -241,7 +241,7 @@ impl GroundTruth {
         let occupancy = watertight.then(|| {
             let points = uniform_points(protocol.iou_points, protocol.iou_half_extent, protocol.seed + 2);
             let test = InsideTest::new(&positions, &tris);
-            let inside = par_map(&points, |&p| test.contains(p));
+            let inside = crate::par::map(&points, |&p| test.contains(p));
             (points, inside)
         });
         Ok(GroundTruth { protocol, norm, samples, tree, watertight, occupancy })
@@ -264,11 +264,11 @@ impl GroundTruth {
         let rec_tree = KdTree::new(&rec.points);
         let gt = &self.samples;
         // (distance, |n · n_nearest|) for each sample, both ways.
-        let to_gt = par_map(&(0..rec.points.len()).collect::<Vec<_>>(), |&i| {
+        let to_gt = crate::par::map(&(0..rec.points.len()).collect::<Vec<_>>(), |&i| {
             let (d2, j) = self.tree.nearest(rec.points[i]).expect("non-empty");
             (d2.sqrt(), dot(rec.normals[i], gt.normals[j as usize]).abs())
         });
-        let to_rec = par_map(&(0..gt.points.len()).collect::<Vec<_>>(), |&i| {
+        let to_rec = crate::par::map(&(0..gt.points.len()).collect::<Vec<_>>(), |&i| {
             let (d2, j) = rec_tree.nearest(gt.points[i]).expect("non-empty");
             (d2.sqrt(), dot(gt.normals[i], rec.normals[j as usize]).abs())
         });
@@ -279,7 +279,7 @@ impl GroundTruth {
         let fscore = if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
         let iou = self.occupancy.as_ref().and_then(|(points, gt_inside)| {
             let test = InsideTest::new(&positions, &tris);
-            let rec_inside = par_map(points, |&p| test.contains(p));
+            let rec_inside = crate::par::map(points, |&p| test.contains(p));
             let both = gt_inside.iter().zip(&rec_inside).filter(|(a, b)| **a && **b).count();
             let either = gt_inside.iter().zip(&rec_inside).filter(|(a, b)| **a || **b).count();
             (either > 0).then(|| both as f64 / either as f64)
@@ -383,25 +383,6 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-/// `items.map(f)` in order, split over the available cores natively (one thread on wasm32).
-fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let threads = if cfg!(target_arch = "wasm32") {
-        1
-    } else {
-        std::thread::available_parallelism().map_or(1, |n| n.get()).min(32)
-    };
-    let threads = threads.min(items.len() / 2048 + 1);
-    if threads <= 1 {
-        return items.iter().map(f).collect();
-    }
-    let chunk = items.len().div_ceil(threads);
-    std::thread::scope(|s| {
-        let f = &f;
-        let handles: Vec<_> = items.chunks(chunk).map(|c| s.spawn(move || c.iter().map(f).collect::<Vec<R>>())).collect();
-        handles.into_iter().flat_map(|h| h.join().expect("a metrics worker panicked")).collect()
-    })
 }
 
 /// A variant's change to the base settings (which carry everything else the user set).

@@ -24,25 +24,10 @@ use super::error::KrrError;
 // ---------------------------------------------------------------------------------------------
 // threads
 
-/// Threads the kernels of this module may use: `NKRR_THREADS` if set to a positive integer, else
-/// `available_parallelism()` (natively); always 1 on `wasm32`.
-#[cfg(not(target_arch = "wasm32"))]
+/// Threads the kernels of this module may use: [`crate::par::threads`] (`NKRR_THREADS` if set
+/// to a positive integer, else every core; always 1 on `wasm32`).
 pub fn max_threads() -> usize {
-    use std::sync::OnceLock;
-    static N: OnceLock<usize> = OnceLock::new();
-    *N.get_or_init(|| {
-        std::env::var("NKRR_THREADS")
-            .ok()
-            .and_then(|v| v.trim().parse::<usize>().ok())
-            .filter(|&n| n > 0)
-            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
-    })
-}
-
-/// Threads the kernels of this module may use: always 1 on `wasm32`.
-#[cfg(target_arch = "wasm32")]
-pub fn max_threads() -> usize {
-    1
+    crate::par::threads()
 }
 
 /// Least work (multiply-adds) worth a thread of its own: starting one costs tens of µs.

@@ -250,30 +250,31 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     let index = PointIndex::new(points);
     let k = opts.k.min(points.len());
     report.neighbours = k;
-    let mut near = Vec::with_capacity(k);
-    // Each vertex's move onto its plane (zero where it stays).
-    let mut moves: Vec<[f64; 3]> = Vec::with_capacity(mesh.positions.len());
-    for (v, n_mesh) in mesh.positions.iter().zip(&mesh.normals) {
-        index.k_nearest(*v, k, &mut near);
-        let within = near.first().is_some_and(|&(d2, _)| (d2 as f64) <= reach2);
-        let plane = if within { plane(points, &near, opts.scale as f64) } else { None };
-        match plane {
-            Some((c, n)) if dot(n, n_mesh.map(f64::from)).abs() >= MIN_COS => {
+    // Each vertex's move onto its plane (zero where it stays), the vertices split over the cores.
+    let mut moves = vec![[0.0f64; 3]; mesh.positions.len()];
+    let moved = crate::par::fill(&mut moves, |start, chunk| {
+        let mut near = Vec::with_capacity(k);
+        let mut moved = 0;
+        for (i, m) in (start..).zip(chunk.iter_mut()) {
+            let (v, n_mesh) = (mesh.positions[i], mesh.normals[i]);
+            index.k_nearest(v, k, &mut near);
+            let within = near.first().is_some_and(|&(d2, _)| (d2 as f64) <= reach2);
+            let plane = if within { plane(points, &near, opts.scale as f64) } else { None };
+            if let Some((c, n)) = plane.filter(|&(_, n)| dot(n, n_mesh.map(f64::from)).abs() >= MIN_COS) {
                 let mut off = dot(sub(v.map(f64::from), c), n);
                 if opts.local == Local::Quadric {
                     // Onto the quadric's height at the vertex's foot; the plane where the
                     // quadric is not defined (points along a line).
                     off -= quadric_height(points, &near, opts.scale as f64, (c, n), v.map(f64::from)).unwrap_or(0.0);
                 }
-                moves.push(n.map(|x| -off * x));
-                report.moved += 1;
-            }
-            _ => {
-                moves.push([0.0; 3]);
-                report.kept += 1;
+                *m = n.map(|x| -off * x);
+                moved += 1;
             }
         }
-    }
+        moved
+    });
+    report.moved = moved.iter().sum();
+    report.kept = moves.len() - report.moved;
     let moves = smooth(&moves, &mesh.indices, opts.smoothing);
     let before: Vec<[f64; 3]> = triangle_normals(&mesh.positions, &mesh.indices);
     let mut shift = 0.0f64;

@@ -79,29 +79,32 @@ pub fn single_layer(mesh: &mut Mesh, points: &[[f32; 3]], gap: f32) -> SheetRepo
     let reach = (edge_sum / nt as f64).max(gap as f64);
     let index = PointIndex::new(&centroids);
     let at = |t: usize| DVec3::from(centroids[t].map(|x| x as f64));
+    // Each triangle's twin, the triangles split over the cores.
     let mut twin = vec![u32::MAX; nt];
-    let mut near = Vec::new();
-    for t in 0..nt {
-        let n = normals[t];
-        if n == DVec3::ZERO {
-            continue;
-        }
-        index.k_nearest(centroids[t], NEIGHBOURS, &mut near);
-        let c = at(t);
-        let mut best = f64::INFINITY;
-        for &(_, u) in &near {
-            if normals[u as usize].dot(n) > OPPOSITE {
+    crate::par::fill(&mut twin, |start, chunk| {
+        let mut near = Vec::new();
+        for (t, twin) in (start..).zip(chunk.iter_mut()) {
+            let n = normals[t];
+            if n == DVec3::ZERO {
                 continue;
             }
-            let d = at(u as usize) - c;
-            let along = d.dot(n);
-            let across2 = (d.length_squared() - along * along).max(0.0);
-            if along.abs() <= gap as f64 && across2 <= reach * reach && d.length_squared() < best {
-                best = d.length_squared();
-                twin[t] = u;
+            index.k_nearest(centroids[t], NEIGHBOURS, &mut near);
+            let c = at(t);
+            let mut best = f64::INFINITY;
+            for &(_, u) in &near {
+                if normals[u as usize].dot(n) > OPPOSITE {
+                    continue;
+                }
+                let d = at(u as usize) - c;
+                let along = d.dot(n);
+                let across2 = (d.length_squared() - along * along).max(0.0);
+                if along.abs() <= gap as f64 && across2 <= reach * reach && d.length_squared() < best {
+                    best = d.length_squared();
+                    *twin = u;
+                }
             }
         }
-    }
+    });
     let paired = twin.iter().filter(|&&u| u != u32::MAX).count();
     if paired == 0 {
         return SheetReport::default();

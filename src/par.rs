@@ -1,0 +1,133 @@
+//! Loops over independent items (a neighbour search per point or per vertex), split over the
+//! cores natively and run on the calling thread on `wasm32`.
+//!
+//! Why: on a real GPU the network's part of a scene is a few percent of its time; the rest is
+//! such loops on one core (docs/scenes.md, "On a GPU"). Each item is computed alone and the
+//! results are concatenated in order, so they are the same bits for any number of threads
+//! ([`threads`]: `NKRR_THREADS`, else every core). `krr::linalg`'s kernels take the same count.
+
+use std::ops::Range;
+
+/// Threads a loop may use: `NKRR_THREADS` if set to a positive integer, else
+/// `available_parallelism()` (natively); always 1 on `wasm32`.
+#[cfg(not(target_arch = "wasm32"))]
+pub(crate) fn threads() -> usize {
+    use std::sync::OnceLock;
+    static N: OnceLock<usize> = OnceLock::new();
+    *N.get_or_init(|| {
+        std::env::var("NKRR_THREADS")
+            .ok()
+            .and_then(|v| v.trim().parse::<usize>().ok())
+            .filter(|&n| n > 0)
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+    })
+}
+
+/// Threads a loop may use: always 1 on `wasm32`.
+#[cfg(target_arch = "wasm32")]
+pub(crate) fn threads() -> usize {
+    1
+}
+
+/// Fewest items worth a thread of its own: an item is a neighbour search or less (a few µs),
+/// starting a thread tens of µs.
+const MIN_ITEMS_PER_THREAD: usize = 2048;
+
+/// `f(range)` over consecutive ranges that cover `0..n`, their outputs concatenated in order.
+/// `f` makes its own scratch space, once per range.
+pub fn map_ranges<R: Send>(n: usize, f: impl Fn(Range<usize>) -> Vec<R> + Sync) -> Vec<R> {
+    let threads = threads().min(n / MIN_ITEMS_PER_THREAD).max(1);
+    if threads == 1 {
+        return f(0..n);
+    }
+    spread(n, threads, &f)
+}
+
+/// Fills `out` chunk by chunk, the chunks split over the cores: `f(start, chunk)` fills
+/// `out[start..start + chunk.len()]` (with scratch space of its own) and returns a summary of
+/// it (a count, say); the summaries come back in order. Writes in place: no second copy of a
+/// large output, as [`map_ranges`]'s concatenation would make.
+pub fn fill<R: Send, S: Send>(out: &mut [R], f: impl Fn(usize, &mut [R]) -> S + Sync) -> Vec<S> {
+    let n = out.len();
+    let threads = threads().min(n / MIN_ITEMS_PER_THREAD).max(1);
+    if threads == 1 {
+        return vec![f(0, out)];
+    }
+    spread_fill(out, threads, &f)
+}
+
+#[cfg(not(target_arch = "wasm32"))]
+fn spread_fill<R: Send, S: Send>(out: &mut [R], threads: usize, f: &(impl Fn(usize, &mut [R]) -> S + Sync)) -> Vec<S> {
+    let chunk = out.len().div_ceil(threads);
+    std::thread::scope(|s| {
+        let handles: Vec<_> = out.chunks_mut(chunk).enumerate().map(|(c, part)| s.spawn(move || f(c * chunk, part))).collect();
+        handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
+    })
+}
+
+#[cfg(target_arch = "wasm32")]
+fn spread_fill<R: Send, S: Send>(out: &mut [R], _threads: usize, f: &(impl Fn(usize, &mut [R]) -> S + Sync)) -> Vec<S> {
+    vec![f(0, out)]
+}
+
+/// `items.iter().map(f)`, split as [`map_ranges`] splits.
+pub fn map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    map_ranges(items.len(), |r| items[r].iter().map(&f).collect())
+}
+
+#[cfg(not(target_arch = "wasm32"))]
+fn spread<R: Send>(n: usize, threads: usize, f: &(impl Fn(Range<usize>) -> Vec<R> + Sync)) -> Vec<R> {
+    let chunk = n.div_ceil(threads);
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..n).step_by(chunk).map(|a| s.spawn(move || f(a..(a + chunk).min(n)))).collect();
+        let mut out = Vec::with_capacity(n);
+        for h in handles {
+            out.extend(h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)));
+        }
+        out
+    })
+}
+
+#[cfg(target_arch = "wasm32")]
+fn spread<R: Send>(n: usize, _threads: usize, f: &(impl Fn(Range<usize>) -> Vec<R> + Sync)) -> Vec<R> {
+    f(0..n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranges_cover_every_item_once_in_order() {
+        for n in [0, 1, 2047, 2048, 4096, 10_001, 100_000] {
+            let got = map_ranges(n, |r| r.map(|i| i * 3).collect());
+            assert_eq!(got, (0..n).map(|i| i * 3).collect::<Vec<_>>(), "n={n}");
+        }
+        let items: Vec<u32> = (0..50_000).collect();
+        assert_eq!(map(&items, |&x| x + 1), (1..50_001).collect::<Vec<u32>>());
+    }
+
+    #[test]
+    fn fill_writes_every_item_in_place_and_returns_the_chunks_summaries_in_order() {
+        for n in [0, 1, 5000, 100_001] {
+            let mut out = vec![u64::MAX; n];
+            let counts = fill(&mut out, |start, chunk| {
+                for (j, x) in chunk.iter_mut().enumerate() {
+                    *x = ((start + j) * 7) as u64;
+                }
+                chunk.len()
+            });
+            assert_eq!(out, (0..n).map(|i| (i * 7) as u64).collect::<Vec<_>>(), "n={n}");
+            assert_eq!(counts.iter().sum::<usize>(), n);
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "item 9000")]
+    fn a_panic_in_a_worker_reaches_the_caller() {
+        map_ranges(20_000, |r| {
+            assert!(!r.contains(&9000), "item 9000");
+            r.collect::<Vec<_>>()
+        });
+    }
+}
