@@ -595,18 +595,24 @@ pub fn from_mesh(field_mesh: &crate::mesh::Mesh, points: &[[f32; 3]], grid: Grid
     let nb = crate::orient::neighbourhoods(points, NEIGHBOURS, 1);
     let mut normals = crate::orient::pca_normals(points, &nb);
     let index = crate::sample::PointIndex::new(&field_mesh.positions);
-    let mut found = Vec::new();
-    let mut by_field = 0;
-    for (p, n) in points.iter().zip(normals.iter_mut()) {
-        index.k_nearest(*p, 1, &mut found);
-        if let Some(&(_, v)) = found.first() {
-            let m = field_mesh.normals[v as usize];
-            if (0..3).map(|a| m[a] * n[a]).sum::<f32>() < 0.0 {
-                *n = n.map(|c| -c);
-                by_field += 1;
+    // Each normal signed by the nearest vertex of the field's mesh, the points split over the cores.
+    let by_field: usize = crate::par::fill(&mut normals, |start, chunk| {
+        let mut found = Vec::new();
+        let mut turned = 0;
+        for (p, n) in points[start..].iter().zip(chunk.iter_mut()) {
+            index.k_nearest(*p, 1, &mut found);
+            if let Some(&(_, v)) = found.first() {
+                let m = field_mesh.normals[v as usize];
+                if (0..3).map(|a| m[a] * n[a]).sum::<f32>() < 0.0 {
+                    *n = n.map(|c| -c);
+                    turned += 1;
+                }
             }
         }
-    }
+        turned
+    })
+    .into_iter()
+    .sum();
     let areas: Vec<f64> = (0..points.len())
         .map(|i| {
             let near = &nb.of(i)[1..nb.of(i).len().min(AREA_NEIGHBOURS + 1)];
@@ -663,14 +669,16 @@ fn resign(grid: Grid, points: &[[f32; 3]], normals: &mut [[f32; 3]], areas: &[f6
 /// that, where both sides read outside) is left as it is.
 fn contradicted(solution: &Solution, points: &[[f32; 3]], normals: &[[f32; 3]]) -> Vec<usize> {
     let d = RESIGN_CELLS * solution.grid.h as f32;
-    (0..points.len())
-        .filter(|&i| {
-            let (p, n) = (points[i], normals[i]);
-            let ahead = solution.value(std::array::from_fn(|a| p[a] + d * n[a]));
-            let behind = solution.value(std::array::from_fn(|a| p[a] - d * n[a]));
-            ahead > 0.0 && behind < 0.0
-        })
-        .collect()
+    crate::par::map_ranges(points.len(), |range| {
+        range
+            .filter(|&i| {
+                let (p, n) = (points[i], normals[i]);
+                let ahead = solution.value(std::array::from_fn(|a| p[a] + d * n[a]));
+                let behind = solution.value(std::array::from_fn(|a| p[a] - d * n[a]));
+                ahead > 0.0 && behind < 0.0
+            })
+            .collect()
+    })
 }
 
 /// The share of a Poisson surface's area that may lie far from every point (farther than
