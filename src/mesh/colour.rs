@@ -21,32 +21,34 @@ pub fn transfer(mesh: &mut Mesh, cloud: &PointCloud, k: usize) -> bool {
         return false;
     }
     let index = PointIndex::new(&cloud.positions);
-    let mut near = Vec::with_capacity(k.max(1));
-    let out = mesh
-        .positions
-        .iter()
-        .map(|&p| {
-            index.k_nearest(p, k.max(1), &mut near);
-            let mut acc = [0.0f64; 4];
-            let mut total = 0.0f64;
-            for &(d2, j) in &near {
-                let c = colors[j as usize];
-                if d2 == 0.0 {
-                    return c;
+    // The vertices split over the cores (a scene's mesh has millions).
+    let out = crate::par::map_ranges(mesh.positions.len(), |range| {
+        let mut near = Vec::with_capacity(k.max(1));
+        mesh.positions[range]
+            .iter()
+            .map(|&p| {
+                index.k_nearest(p, k.max(1), &mut near);
+                let mut acc = [0.0f64; 4];
+                let mut total = 0.0f64;
+                for &(d2, j) in &near {
+                    let c = colors[j as usize];
+                    if d2 == 0.0 {
+                        return c;
+                    }
+                    let w = 1.0 / d2 as f64;
+                    for (a, &x) in acc.iter_mut().zip(&c) {
+                        *a += w * x as f64;
+                    }
+                    total += w;
                 }
-                let w = 1.0 / d2 as f64;
-                for (a, &x) in acc.iter_mut().zip(&c) {
-                    *a += w * x as f64;
+                if !(total > 0.0 && total.is_finite()) {
+                    // Only when distances underflow or the vertex is not finite: the nearest colour.
+                    return near.first().map_or([255; 4], |&(_, j)| colors[j as usize]);
                 }
-                total += w;
-            }
-            if !(total > 0.0 && total.is_finite()) {
-                // Only when distances underflow or the vertex is not finite: the nearest colour.
-                return near.first().map_or([255; 4], |&(_, j)| colors[j as usize]);
-            }
-            acc.map(|a| (a / total).round().clamp(0.0, 255.0) as u8)
-        })
-        .collect();
+                acc.map(|a| (a / total).round().clamp(0.0, 255.0) as u8)
+            })
+            .collect()
+    });
     mesh.colors = Some(out);
     true
 }

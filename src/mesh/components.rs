@@ -96,14 +96,21 @@ pub fn remove_unsupported_components(mesh: &mut Mesh, points: &[[f32; 3]], share
         }
     }
     let index = crate::sample::PointIndex::new(&mesh.positions);
+    // Each point's component (the points split over the cores), then the counts.
+    let supported: Vec<u32> = crate::par::map_ranges(points.len(), |range| {
+        let mut near = Vec::with_capacity(1);
+        points[range]
+            .iter()
+            .map(|&p| {
+                index.k_nearest(p, 1, &mut near);
+                near.first().map_or(u32::MAX, |&(_, v)| of_vertex[v as usize])
+            })
+            .collect()
+    });
     let mut support = vec![0usize; sizes.len()];
-    let mut near = Vec::with_capacity(1);
-    for &p in points {
-        index.k_nearest(p, 1, &mut near);
-        if let Some(&(_, v)) = near.first() {
-            if let Some(s) = support.get_mut(of_vertex[v as usize] as usize) {
-                *s += 1;
-            }
+    for c in supported {
+        if let Some(s) = support.get_mut(c as usize) {
+            *s += 1;
         }
     }
     let best = (0..sizes.len()).max_by_key(|&c| (support[c], sizes[c])).unwrap_or(0);
