@@ -33,14 +33,20 @@ pub(crate) fn threads() -> usize {
 /// starting a thread tens of µs.
 const MIN_ITEMS_PER_THREAD: usize = 2048;
 
+/// Threads for `n` items: [`threads`], fewer when there are not enough items for them.
+fn threads_for(n: usize) -> usize {
+    threads().min(n / MIN_ITEMS_PER_THREAD).max(1)
+}
+
 /// `f(range)` over consecutive ranges that cover `0..n`, their outputs concatenated in order.
 /// `f` makes its own scratch space, once per range.
 pub fn map_ranges<R: Send>(n: usize, f: impl Fn(Range<usize>) -> Vec<R> + Sync) -> Vec<R> {
-    let threads = threads().min(n / MIN_ITEMS_PER_THREAD).max(1);
-    if threads == 1 {
+    let chunk = n.div_ceil(threads_for(n)).max(1);
+    let ranges: Vec<Range<usize>> = (0..n).step_by(chunk).map(|a| a..(a + chunk).min(n)).collect();
+    if ranges.len() <= 1 {
         return f(0..n);
     }
-    spread(n, threads, &f)
+    run(ranges, &f).into_iter().flatten().collect()
 }
 
 /// Fills `out` chunk by chunk, the chunks split over the cores: `f(start, chunk)` fills
@@ -48,49 +54,32 @@ pub fn map_ranges<R: Send>(n: usize, f: impl Fn(Range<usize>) -> Vec<R> + Sync) 
 /// it (a count, say); the summaries come back in order. Writes in place: no second copy of a
 /// large output, as [`map_ranges`]'s concatenation would make.
 pub fn fill<R: Send, S: Send>(out: &mut [R], f: impl Fn(usize, &mut [R]) -> S + Sync) -> Vec<S> {
-    let n = out.len();
-    let threads = threads().min(n / MIN_ITEMS_PER_THREAD).max(1);
-    if threads == 1 {
+    let chunk = out.len().div_ceil(threads_for(out.len())).max(1);
+    if chunk >= out.len() {
         return vec![f(0, out)];
     }
-    spread_fill(out, threads, &f)
+    let parts: Vec<(usize, &mut [R])> = out.chunks_mut(chunk).enumerate().map(|(c, part)| (c * chunk, part)).collect();
+    run(parts, &|(start, part)| f(start, part))
 }
 
+/// `f` of each part on a scoped thread of its own, the results in the parts' order (natively;
+/// on `wasm32`, where [`threads`] is 1 and nothing gets here, one after the other).
 #[cfg(not(target_arch = "wasm32"))]
-fn spread_fill<R: Send, S: Send>(out: &mut [R], threads: usize, f: &(impl Fn(usize, &mut [R]) -> S + Sync)) -> Vec<S> {
-    let chunk = out.len().div_ceil(threads);
+fn run<P: Send, S: Send>(parts: Vec<P>, f: &(impl Fn(P) -> S + Sync)) -> Vec<S> {
     std::thread::scope(|s| {
-        let handles: Vec<_> = out.chunks_mut(chunk).enumerate().map(|(c, part)| s.spawn(move || f(c * chunk, part))).collect();
+        let handles: Vec<_> = parts.into_iter().map(|part| s.spawn(move || f(part))).collect();
         handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
     })
 }
 
 #[cfg(target_arch = "wasm32")]
-fn spread_fill<R: Send, S: Send>(out: &mut [R], _threads: usize, f: &(impl Fn(usize, &mut [R]) -> S + Sync)) -> Vec<S> {
-    vec![f(0, out)]
+fn run<P: Send, S: Send>(parts: Vec<P>, f: &(impl Fn(P) -> S + Sync)) -> Vec<S> {
+    parts.into_iter().map(f).collect()
 }
 
 /// `items.iter().map(f)`, split as [`map_ranges`] splits.
 pub fn map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
     map_ranges(items.len(), |r| items[r].iter().map(&f).collect())
-}
-
-#[cfg(not(target_arch = "wasm32"))]
-fn spread<R: Send>(n: usize, threads: usize, f: &(impl Fn(Range<usize>) -> Vec<R> + Sync)) -> Vec<R> {
-    let chunk = n.div_ceil(threads);
-    std::thread::scope(|s| {
-        let handles: Vec<_> = (0..n).step_by(chunk).map(|a| s.spawn(move || f(a..(a + chunk).min(n)))).collect();
-        let mut out = Vec::with_capacity(n);
-        for h in handles {
-            out.extend(h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)));
-        }
-        out
-    })
-}
-
-#[cfg(target_arch = "wasm32")]
-fn spread<R: Send>(n: usize, _threads: usize, f: &(impl Fn(Range<usize>) -> Vec<R> + Sync)) -> Vec<R> {
-    f(0..n)
 }
 
 #[cfg(test)]

@@ -28,37 +28,19 @@ pub fn neighbour_distances(points: &[[f32; 3]], ks: &[usize]) -> Vec<Vec<f32>> {
     }
     let ks: Vec<usize> = ks.iter().map(|&k| k.clamp(1, n - 1)).collect();
     let k = ks.iter().copied().max().unwrap_or(1);
-    let grid = Grid::new(points);
-    // For each point, its distance to each rank in turn; the points split over the cores.
+    let index = PointIndex::new(points);
+    // For each point, its distance to each rank in turn; the points split over the cores. The
+    // k + 1 nearest hold the point itself (at distance 0) unless more than k duplicates of it
+    // come first, and either way the k nearest others.
     let flat: Vec<f32> = crate::par::map_ranges(n, |range| {
-        let mut best: Vec<f32> = Vec::with_capacity(k + 1); // squared distances, sorted ascending
+        let mut near = Vec::with_capacity(k + 1);
+        let mut others: Vec<f32> = Vec::with_capacity(k + 1); // squared distances, ascending
         let mut out = Vec::with_capacity(range.len() * ks.len());
         for i in range {
-            let p = &points[i];
-            best.clear();
-            let c = grid.cell_of(p);
-            let mut ring = 0i64;
-            loop {
-                grid.for_ring(c, ring, |j| {
-                    if j as usize == i {
-                        return;
-                    }
-                    let q = points[j as usize];
-                    let d2 = (0..3).map(|a| (p[a] - q[a]) * (p[a] - q[a])).sum::<f32>();
-                    if best.len() < k || d2 < best[k - 1] {
-                        let at = best.partition_point(|&b| b <= d2);
-                        best.insert(at, d2);
-                        best.truncate(k);
-                    }
-                });
-                // Every cell beyond this ring is at least `ring * h` away from p's cell walls.
-                let reach = ring as f32 * grid.h;
-                if (best.len() == k && best[k - 1] <= reach * reach) || ring > grid.max_ring() {
-                    break;
-                }
-                ring += 1;
-            }
-            out.extend(ks.iter().map(|&kr| best.get(kr - 1).copied().unwrap_or(0.0).sqrt()));
+            index.k_nearest(points[i], k + 1, &mut near);
+            others.clear();
+            others.extend(near.iter().filter(|&&(_, j)| j as usize != i).map(|&(d2, _)| d2));
+            out.extend(ks.iter().map(|&kr| others.get(kr - 1).copied().unwrap_or(0.0).sqrt()));
         }
         out
     });

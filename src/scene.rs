@@ -308,11 +308,15 @@ impl TilePlan {
         if (0..3).any(|a| lo[a] > hi[a]) {
             return Vec::new();
         }
-        let dims = [0, 1, 2].map(|a| (hi[a] - lo[a] + 1) as usize);
-        let node = |n: [i64; 3]| (((n[2] - lo[2]) as usize * dims[1] + (n[1] - lo[1]) as usize) * dims[0]) + (n[0] - lo[0]) as usize;
+        // Index of `n` in the box from `lo` to `hi` (inclusive), x fastest, and the box's size.
+        let boxed_index = |lo: [i64; 3], hi: [i64; 3]| {
+            let dims = [0, 1, 2].map(|a| (hi[a] - lo[a] + 1) as usize);
+            (move |n: [i64; 3]| ((n[2] - lo[2]) as usize * dims[1] + (n[1] - lo[1]) as usize) * dims[0] + (n[0] - lo[0]) as usize, dims)
+        };
+        let (node, dims) = boxed_index(lo, hi);
         // The cells whose band reaches the box: BAND + 1 nodes below a cell's, BAND above.
         let (clo, chi) = (lo.map(|l| l - BAND - 1), hi.map(|h| h + BAND));
-        let cdims = [0, 1, 2].map(|a| (chi[a] - clo[a] + 1) as usize);
+        let (cell, cdims) = boxed_index(clo, chi);
         let mut cell_seen = vec![false; cdims.iter().product()];
         let mut near = vec![false; dims.iter().product()];
         for p in points {
@@ -320,8 +324,7 @@ impl TilePlan {
             if (0..3).any(|a| c[a] < clo[a] || c[a] > chi[a]) {
                 continue;
             }
-            let ci = ((c[2] - clo[2]) as usize * cdims[1] + (c[1] - clo[1]) as usize) * cdims[0] + (c[0] - clo[0]) as usize;
-            if std::mem::replace(&mut cell_seen[ci], true) {
+            if std::mem::replace(&mut cell_seen[cell(c)], true) {
                 continue;
             }
             let from = [0, 1, 2].map(|a| (c[a] - BAND).max(lo[a]));
@@ -706,7 +709,12 @@ impl<'a> Sweep<'a> {
         if n.iter().any(|&c| c > self.plan.resolution as i64) {
             return None;
         }
-        self.blocks.get(&Self::block_of(n))?.get(&self.plan.node_key(n)).map(|(wf, w)| wf / w)
+        self.blended(self.blocks.get(&Self::block_of(n))?, n)
+    }
+
+    /// The blended value Σ w·f / Σ w at node `n` of `block` (the block's map), if it has one.
+    fn blended(&self, block: &KeyMap<(f32, f32)>, n: [i64; 3]) -> Option<f32> {
+        block.get(&self.plan.node_key(n)).map(|(wf, w)| wf / w)
     }
 
     /// Marching cubes over block `c`'s cells (those whose low corner is in it) with all eight
@@ -724,7 +732,7 @@ impl<'a> Sweep<'a> {
             let all = (0..8).all(|corner| {
                 let at = [n[0] + (corner & 1) as i64, n[1] + (corner >> 1 & 1) as i64, n[2] + (corner >> 2 & 1) as i64];
                 // Most corners are in this block: its map is at hand, the others' are looked up.
-                let value = if Self::block_of(at) == c { own.get(&self.plan.node_key(at)).map(|(wf, w)| wf / w) } else { self.value(at) };
+                let value = if Self::block_of(at) == c { self.blended(own, at) } else { self.value(at) };
                 value.map(|x| v[corner] = x).is_some()
             });
             let inside = v.iter().filter(|&&x| x > 0.0).count();

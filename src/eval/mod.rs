@@ -264,13 +264,19 @@ impl GroundTruth {
         let rec_tree = KdTree::new(&rec.points);
         let gt = &self.samples;
         // (distance, |n · n_nearest|) for each sample, both ways.
-        let to_gt = crate::par::map(&(0..rec.points.len()).collect::<Vec<_>>(), |&i| {
-            let (d2, j) = self.tree.nearest(rec.points[i]).expect("non-empty");
-            (d2.sqrt(), dot(rec.normals[i], gt.normals[j as usize]).abs())
+        let to_gt = crate::par::map_ranges(rec.points.len(), |r| {
+            r.map(|i| {
+                let (d2, j) = self.tree.nearest(rec.points[i]).expect("non-empty");
+                (d2.sqrt(), dot(rec.normals[i], gt.normals[j as usize]).abs())
+            })
+            .collect()
         });
-        let to_rec = crate::par::map(&(0..gt.points.len()).collect::<Vec<_>>(), |&i| {
-            let (d2, j) = rec_tree.nearest(gt.points[i]).expect("non-empty");
-            (d2.sqrt(), dot(gt.normals[i], rec.normals[j as usize]).abs())
+        let to_rec = crate::par::map_ranges(gt.points.len(), |r| {
+            r.map(|i| {
+                let (d2, j) = rec_tree.nearest(gt.points[i]).expect("non-empty");
+                (d2.sqrt(), dot(gt.normals[i], rec.normals[j as usize]).abs())
+            })
+            .collect()
         });
         let tau = self.protocol.tau;
         let mean = |v: &[(f64, f64)], f: &dyn Fn(&(f64, f64)) -> f64| v.iter().map(f).sum::<f64>() / v.len() as f64;
