@@ -4,7 +4,10 @@
 #      Chromium; docs/speed.md),
 #   2. `nkrr eval` of the eval and falloff clouds on the GPU, to hold its meshes against the same
 #      commit's on lavapipe (the kernels' only check on real hardware so far),
-#   3. the second prior's recipe (training/train_v2.sh) on the GPU for what time is left,
+#   3. a prior's recipe (RECIPE, default training/train_v2.sh; its run RUN_NAME, default v2gpu)
+#      on the GPU for what time is left (less EVALW_S when EVALW=1: then the trained prior is
+#      exported to OUT/prior-RUN_NAME.safetensors and `nkrr eval --weights` runs it on the eval
+#      clouds at EVALW_SIZES, OUT/eval-RUN_NAME.{md,json}, within EVALW_S seconds),
 #   4. (PARTS=scene) each .gpubench/scene/*.laz reconstructed as a scene (tiles on) by each
 #      build in SCENE_BINS (default .gpubench/nkrr): wall time, the process's peak memory, stage
 #      times; OUT/NAME-BUILD.glb for clouds under 100k points.
@@ -74,12 +77,24 @@ if want scene; then
 fi
 
 want train || { ls -la "$OUT"; stamp "end"; exit 0; }
-# 3. Training: what is left, less 80 s for the start (pool, held-out IoU) and the end.
-MIN=$(python3 -c "print(round(max(0.5, ($(left) - 80) / 60), 2))")
-stamp "3. training ${MIN} min"
-NAME=v2gpu
-timeout $(( $(left) - 5 )) env PYTHON=python3 bash training/train_v2.sh "$MIN" "$NAME"
+# 3. Training: what is left, less 80 s for the start (pool, held-out IoU) and the end, and less
+# the trained prior's eval when there is one.
+RECIPE=${RECIPE:-training/train_v2.sh}
+NAME=${RUN_NAME:-v2gpu}
+EVALW_S=${EVALW_S:-150}
+[ "${EVALW:-0}" = 1 ] || EVALW_S=0
+MIN=$(python3 -c "print(round(max(0.5, ($(left) - 80 - $EVALW_S) / 60), 2))")
+stamp "3. training ${MIN} min: $RECIPE"
+timeout $(( $(left) - 5 - EVALW_S )) env PYTHON=python3 bash "$RECIPE" "$MIN" "$NAME"
 stamp "3. done ($?)"
 tar -cf "$OUT/$NAME.tar" -C training/runs "$NAME" "$NAME.log" 2>/dev/null
+if [ "$EVALW_S" -gt 0 ]; then
+    stamp "3b. export and eval of the trained prior"
+    python3 -m training.export --run "training/runs/$NAME" --out-dir /tmp/export-$NAME \
+        && cp "/tmp/export-$NAME/assets/prior.safetensors" "$OUT/prior-$NAME.safetensors" \
+        && timeout $(( $(left) - 5 )) "$NKRR" eval .gpubench/eval --sizes ${EVALW_SIZES:-500,3k,10k,falloff} \
+            --methods nkrr --weights "$OUT/prior-$NAME.safetensors" --out "$OUT/eval-$NAME" >/dev/null
+    stamp "3b. done ($?)"
+fi
 ls -la "$OUT"
 stamp "end"

@@ -61,10 +61,12 @@ def main(argv=None):
              if args.get("shape_kind", 1) == 1 else
              "[-0.55, 0.55]^3, half surface + N(0, s^2), s one of 0.005, 0.01, 0.05 in equal parts), BCE with "
              f"logits. Shape stream {args.get('shape_kind')} (`training/shapes.py` STREAMS: the first prior's "
-             "families and surfaces of revolution, tubes, thin flaps, machined parts); degraded clouds: "
-             f"{args.get('aug_falloff', 0):.0%} with a density falloff of up to 60x along a random direction, "
-             f"{args.get('aug_outliers', 0):.0%} with up to 10 % stray points, {args.get('aug_onesided', 0):.0%} "
-             "seen from one side (`training/data.py` Scan)."),
+             "families and surfaces of revolution, tubes, thin flaps, machined parts).")
+          # The degradations apply to any stream (train.py builds its Scan from them alone).
+          + (f" Degraded clouds: {args.get('aug_falloff', 0):.0%} with a density falloff of up to 60x along a "
+             f"random direction, {args.get('aug_outliers', 0):.0%} with up to 10 % stray points, "
+             f"{args.get('aug_onesided', 0):.0%} seen from one side (`training/data.py` Scan)."
+             if any(args.get(k, 0) for k in ("aug_falloff", "aug_outliers", "aug_onesided")) else ""),
           f"- Held-out: {args.get('heldout')} shapes from a separate seed space, 3000 points, noise 0.005, "
           "IoU on 10k uniform points (logit > 0), mean over shapes.", ""]
     if train:
