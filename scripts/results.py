@@ -445,15 +445,15 @@ def render_phase(work, shapes, size):
 METHOD_ORDER = ["network", "nkrr", "nkrr-field", "spsr", "ipsr"] + ABLATIONS
 LABEL = {"network": "network", "nkrr": "nkrr", "nkrr-field": "nkrr, field surface", "spsr": "SPSR (depth 8)",
          "ipsr": "iPSR (defaults)"}
-# iPSR (Hou et al., SIGGRAPH 2022) is built and run outside this repository (neither its code nor
-# a script that builds it is committed): its rows are read when WORK/ipsr/ipsr.jsonl and
+# iPSR (Hou et al., SIGGRAPH 2022) is built outside this repository (its code is not committed)
+# and run by scripts/ipsr_runs.py: its rows are read when WORK/ipsr/ipsr.jsonl and
 # WORK/hard/ipsr/ipsr.jsonl are there, in spsr.jsonl's form with total_s (see IPSR_HOW).
 IPSR_HOW = ("iPSR: github.com/houfei0801/ipsr at 0cf5932 (MIT), built beside this repository with its own "
-            "makefile (`g++ -std=c++11 -O3 -fopenmp`), run with its defaults (30 iterations, point weight 10, "
-            "depth 10, 10 neighbours) on one core (`OMP_THREAD_LIMIT=1`), its PLY output scored by the same "
-            "`nkrr metrics`; rows in `target/results/ipsr/ipsr.jsonl` and `target/results/hard/ipsr/ipsr.jsonl`. "
-            "Its code and the script that ran it are not in this repository, so a clone's report has no iPSR "
-            "rows unless they are made the same way.")
+            "makefile (`g++ -std=c++11 -O3 -fopenmp`), run by `scripts/ipsr_runs.py` with its defaults (30 "
+            "iterations, point weight 10, depth 10, 10 neighbours) on one core (`OMP_THREAD_LIMIT=1`), its PLY "
+            "output scored by the same `nkrr metrics`; rows in `target/results/ipsr/ipsr.jsonl` and "
+            "`target/results/hard/ipsr/ipsr.jsonl`. A clone's report has iPSR rows only where iPSR was built "
+            "beside it and that script run first (its doc has the commands).")
 
 
 def fmt(v, nd=3):
