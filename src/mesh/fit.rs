@@ -39,6 +39,10 @@ pub struct FitReport {
     /// When the cloud was noisier than the clean eval clouds: its noise ([`noise_level`]) and
     /// the neighbours [`FitOptions::for_points`] would have used for its point count.
     pub widened: Option<(f64, usize)>,
+    /// [`Local::Tangents`]: the most each vertex's offset moved towards its neighbours' tangent
+    /// planes (0.5 on a clean cloud, less on a noisier one, 0 on a noisy one); None with
+    /// another local surface.
+    pub tangents: Option<f64>,
 }
 
 impl FitReport {
@@ -96,14 +100,28 @@ pub enum Local {
     /// there the quadric of 11-20 noisy points follows their noise (10k: 0.301 → 0.318); nor
     /// from [`QUADRIC_BELOW`] points.
     Quadric,
+    /// The plane, with its offset moved towards the mean offset of the vertex to its neighbours'
+    /// own tangent planes (each point's PCA normal, [`TANGENT_NORMAL_NEIGHBOURS`]; implicit MLS,
+    /// Kolluri 2005, as RIMLS evaluates it). The plane of a curved neighbourhood lies inside the
+    /// curve and the neighbours' tangent planes lie outside it, by about the same sag: halfway
+    /// between the two the sags cancel, with no more parameters fitted to the noise than the
+    /// plane's (a quadric of 11-20 noisy points follows their noise). Each vertex goes halfway
+    /// only where the two offsets differ by more than the noise of the plane's explains
+    /// ([`TANGENT_SHRINK`]), and not at all on clouds noisier than the clean eval clouds
+    /// ([`TANGENT_NOISE`]), where the tangent planes' tilt adds more error than the sag it
+    /// removes. For the Poisson surface: measured in docs/fit.md ("The neighbours' tangent
+    /// planes").
+    Tangents,
 }
 
 impl Local {
-    /// What one object's mesh of `points` points is fitted onto: quadrics for the field's level
-    /// set below [`QUADRIC_BELOW`] points, planes for the Poisson surface (`poisson`) and for
-    /// larger clouds, as measured above.
+    /// What one object's mesh of `points` points is fitted onto: the plane with its neighbours'
+    /// tangent planes for the Poisson surface (`poisson`), quadrics for the field's level set
+    /// below [`QUADRIC_BELOW`] points and planes above, as measured above.
     pub fn for_object(poisson: bool, points: usize) -> Local {
-        if !poisson && points < QUADRIC_BELOW {
+        if poisson {
+            Local::Tangents
+        } else if points < QUADRIC_BELOW {
             Local::Quadric
         } else {
             Local::Plane
@@ -151,6 +169,28 @@ impl FitOptions {
         }
         (o, noise)
     }
+}
+
+/// Neighbours of each point's PCA normal for [`Local::Tangents`] (30 gave about the same on the
+/// tuning shapes; the Poisson surface's normals use 30 too, but are not at hand in the fit).
+const TANGENT_NORMAL_NEIGHBOURS: usize = 20;
+
+/// [`Local::Tangents`]: a vertex goes `½·d²/(d² + TANGENT_SHRINK·v)` of the way from the
+/// plane's offset to the tangent planes' (`d` their difference, `v` the variance of the
+/// plane's offset: its neighbours' weighted squared residuals over their effective count), so
+/// halfway where the sag stands out of the noise and hardly at all where it does not. Chosen on
+/// the tuning shapes from 1, 4 and 16 (docs/fit.md).
+const TANGENT_SHRINK: f64 = 4.0;
+
+/// [`Local::Tangents`] at full weight on clouds up to the first [`noise_ratio`], fading
+/// linearly to none at the second: the clean eval clouds measure 0.81-0.99, clouds with σ
+/// 0.0075 (1.5 times theirs) 1.04-1.27 and were better with the plane alone (docs/fit.md).
+const TANGENT_NOISE: (f64, f64) = (1.0, 1.15);
+
+/// The weight of the tangent planes ([`Local::Tangents`]) on a cloud of this [`noise_ratio`].
+fn tangent_weight(noise_ratio: f64) -> f64 {
+    let (full, none) = TANGENT_NOISE;
+    0.5 * ((none - noise_ratio) / (none - full)).clamp(0.0, 1.0)
 }
 
 /// The most neighbours a noisy cloud's fit averages over: beyond it the plane spans so much of
@@ -250,6 +290,11 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     let index = PointIndex::new(points);
     let k = opts.k.min(points.len());
     report.neighbours = k;
+    // Local::Tangents: each point's own normal, unless the cloud is too noisy to use them.
+    let tangents = if opts.local == Local::Tangents { tangent_weight(noise_ratio(points)) } else { 0.0 };
+    let point_normals = (tangents > 0.0)
+        .then(|| crate::orient::pca_normals(points, &crate::orient::neighbourhoods(points, TANGENT_NORMAL_NEIGHBOURS, 1)));
+    report.tangents = (opts.local == Local::Tangents).then_some(tangents);
     // Each vertex's move onto its plane (zero where it stays), the vertices split over the cores.
     let mut moves = vec![[0.0f64; 3]; mesh.positions.len()];
     let moved = crate::par::fill(&mut moves, |start, chunk| {
@@ -266,6 +311,13 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
                     // Onto the quadric's height at the vertex's foot; the plane where the
                     // quadric is not defined (points along a line).
                     off -= quadric_height(points, &near, opts.scale as f64, (c, n), v.map(f64::from)).unwrap_or(0.0);
+                }
+                if let Some(normals) = &point_normals {
+                    let (off_t, var) = tangent_offset(points, normals, &near, opts.scale as f64, (c, n), v.map(f64::from));
+                    let d = off_t - off;
+                    if d != 0.0 {
+                        off += tangents * d * d / (d * d + TANGENT_SHRINK * var) * d;
+                    }
                 }
                 *m = n.map(|x| -off * x);
                 moved += 1;
@@ -464,6 +516,31 @@ fn plane(points: &[[f32; 3]], near: &[(f32, u32)], scale: f64) -> Option<([f64; 
     Some((c, n))
 }
 
+/// [`Local::Tangents`]' two numbers at vertex `v` over the plane `(c, n)` of `near` (the
+/// plane's Gaussian weights): the weighted mean of `v`'s offsets to the neighbours' tangent
+/// planes (their `normals` turned to agree with `n`), and the variance of the plane's own offset
+/// (the weighted mean squared residual of the neighbours over their effective count).
+fn tangent_offset(points: &[[f32; 3]], normals: &[[f32; 3]], near: &[(f32, u32)], scale: f64, (c, n): ([f64; 3], [f64; 3]), v: [f64; 3]) -> (f64, f64) {
+    let dk2 = near.last().map_or(0.0, |l| l.0 as f64);
+    let h2 = (scale * scale * dk2).max(f64::MIN_POSITIVE);
+    let (mut sw, mut sw2, mut off, mut res2) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for &(d2, i) in near {
+        let w = (-(d2 as f64) / h2).exp();
+        let p = points[i as usize].map(f64::from);
+        let ni = normals[i as usize].map(f64::from);
+        let ni = if dot(ni, n) < 0.0 { ni.map(|a| -a) } else { ni };
+        sw += w;
+        sw2 += w * w;
+        off += w * dot(sub(v, p), ni);
+        res2 += w * dot(sub(p, c), n).powi(2);
+    }
+    if !(sw > 0.0) {
+        return (0.0, 0.0);
+    }
+    // Effective count (Σw)²/Σw², so the variance of the mean is (Σw·r²/Σw)·Σw²/(Σw)².
+    (off / sw, res2 / sw * sw2 / (sw * sw))
+}
+
 /// The height over the plane `(c, n)` at `v`'s foot of the quadric `z = a x² + b xy + c y² + f`
 /// fitted to `near` by weighted least squares (the plane's Gaussian weights) in the plane's frame,
 /// or None where its normal equations are singular.
@@ -611,6 +688,58 @@ mod tests {
         println!("mean radius error: plane {plane:e}, quadric {quadric:e}");
         assert!(plane < -2e-4, "the plane lies inside the curve: {plane:e}");
         assert!(quadric.abs() < 0.3 * plane.abs(), "quadric {quadric:e} against plane {plane:e}");
+    }
+
+    /// The same vertices over the same exact sphere: with the neighbours' tangent planes
+    /// (`Local::Tangents`) the plane's sag cancels as the quadric's fit removes it, at full
+    /// weight on a clean cloud.
+    #[test]
+    fn the_neighbours_tangent_planes_cancel_the_planes_sag() {
+        let points = noisy_sphere(3000, 0.0);
+        let opts = FitOptions { smoothing: 0, ..FitOptions::for_points(points.len()) };
+        let dirs = noisy_sphere(200, 0.0);
+        let fit = |local: Local| {
+            let mut mesh = Mesh {
+                positions: dirs.iter().map(|d| d.map(|c| c * 0.41 / 0.4)).collect(),
+                normals: dirs.iter().map(|d| d.map(|c| c / 0.4)).collect(),
+                colors: None,
+                indices: Vec::new(),
+            };
+            let r = fit_to_points(&mut mesh, &points, &FitOptions { local, ..opts });
+            let bias = mesh.positions.iter().map(|v| v.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt() - 0.4).sum::<f64>();
+            (bias / dirs.len() as f64, r)
+        };
+        let ((plane, _), (tangents, report)) = (fit(Local::Plane), fit(Local::Tangents));
+        println!("mean radius error: plane {plane:e}, with the tangent planes {tangents:e}");
+        assert_eq!(report.tangents, Some(0.5), "a clean cloud: full weight");
+        assert_eq!(report.moved, dirs.len());
+        assert!(plane < -2e-4, "the plane lies inside the curve: {plane:e}");
+        assert!(tangents.abs() < 0.3 * plane.abs(), "tangent planes {tangents:e} against plane {plane:e}");
+    }
+
+    /// On a cloud noisier than the clean eval clouds the tangent planes stay out: the same
+    /// vertices as the plane's, to the bit. Between, the weight falls with the noise.
+    #[test]
+    fn a_noisy_cloud_keeps_the_plane() {
+        let points = noisy_sphere(3000, 0.02);
+        assert!(noise_ratio(&points) > TANGENT_NOISE.1, "{}", noise_ratio(&points));
+        let dirs = noisy_sphere(200, 0.0);
+        let fit = |local: Local| {
+            let mut mesh = Mesh {
+                positions: dirs.iter().map(|d| d.map(|c| c * 0.41 / 0.4)).collect(),
+                normals: dirs.iter().map(|d| d.map(|c| c / 0.4)).collect(),
+                colors: None,
+                indices: Vec::new(),
+            };
+            let r = fit_to_points(&mut mesh, &points, &FitOptions { local, ..FitOptions::for_points(points.len()) });
+            (mesh.positions, r.tangents)
+        };
+        let (plane, tangents) = (fit(Local::Plane), fit(Local::Tangents));
+        assert_eq!(tangents.1, Some(0.0));
+        assert_eq!(plane.0, tangents.0);
+        assert_eq!(tangent_weight(TANGENT_NOISE.0), 0.5);
+        assert_eq!(tangent_weight(0.5 * (TANGENT_NOISE.0 + TANGENT_NOISE.1)), 0.25);
+        assert_eq!(tangent_weight(TANGENT_NOISE.1), 0.0);
     }
 
     /// `n` points on the unit sphere's surface scaled to radius 0.4 (a cloud the size of the

@@ -337,8 +337,17 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     }
     if let Some(f) = &rec.fit {
         tell!(
-            "fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone; {} triangles turned over, {} after the repair",
-            f.moved, f.mean_shift, f.kept, f.flipped, f.flipped_after_repair
+            "fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone; {} triangles turned over, {} after the repair{}",
+            f.moved,
+            f.mean_shift,
+            f.kept,
+            f.flipped,
+            f.flipped_after_repair,
+            match f.tangents {
+                Some(w) if w > 0.0 => format!("; each plane moved up to {w:.2} of the way to the neighbours' tangent planes"),
+                Some(_) => "; planes alone (the cloud is noisier than a clean scan)".to_string(),
+                None => String::new(),
+            }
         );
     }
     for w in &rec.warnings {
