@@ -25,7 +25,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "peers"))
-from spsr import eval_clouds, run_metrics  # noqa: E402  (the same cloud list and scoring as SPSR)
+from spsr import emit, eval_clouds, run_metrics  # noqa: E402  (the same clouds, scoring and rows as SPSR's)
 
 
 def ply_to_obj(ply, obj):
@@ -100,10 +100,7 @@ def main():
                 os.remove(ply)
                 row["recon"] = recon
                 row.update(run_metrics(a.metrics_cmd, os.path.join(a.data, f"{name}.obj"), recon))
-            line = json.dumps(row)
-            print(line, flush=True)
-            log.write(line + "\n")
-            log.flush()
+            emit(row, log)
 
 
 if __name__ == "__main__":

@@ -699,12 +699,7 @@ mod tests {
         let opts = FitOptions { smoothing: 0, ..FitOptions::for_points(points.len()) };
         let dirs = noisy_sphere(200, 0.0);
         let fit = |local: Local| {
-            let mut mesh = Mesh {
-                positions: dirs.iter().map(|d| d.map(|c| c * 0.41 / 0.4)).collect(),
-                normals: dirs.iter().map(|d| d.map(|c| c / 0.4)).collect(),
-                colors: None,
-                indices: Vec::new(),
-            };
+            let mut mesh = hovering(&dirs);
             let r = fit_to_points(&mut mesh, &points, &FitOptions { local, ..opts });
             let bias = mesh.positions.iter().map(|v| v.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt() - 0.4).sum::<f64>();
             (bias / dirs.len() as f64, r)
@@ -725,12 +720,7 @@ mod tests {
         assert!(noise_ratio(&points) > TANGENT_NOISE.1, "{}", noise_ratio(&points));
         let dirs = noisy_sphere(200, 0.0);
         let fit = |local: Local| {
-            let mut mesh = Mesh {
-                positions: dirs.iter().map(|d| d.map(|c| c * 0.41 / 0.4)).collect(),
-                normals: dirs.iter().map(|d| d.map(|c| c / 0.4)).collect(),
-                colors: None,
-                indices: Vec::new(),
-            };
+            let mut mesh = hovering(&dirs);
             let r = fit_to_points(&mut mesh, &points, &FitOptions { local, ..FitOptions::for_points(points.len()) });
             (mesh.positions, r.tangents)
         };
@@ -740,6 +730,17 @@ mod tests {
         assert_eq!(tangent_weight(TANGENT_NOISE.0), 0.5);
         assert_eq!(tangent_weight(0.5 * (TANGENT_NOISE.0 + TANGENT_NOISE.1)), 0.25);
         assert_eq!(tangent_weight(TANGENT_NOISE.1), 0.0);
+    }
+
+    /// Vertices (no triangles) 0.01 outside the radius-0.4 sphere along the directions `dirs`
+    /// (points of that sphere), with the sphere's normals.
+    fn hovering(dirs: &[[f32; 3]]) -> Mesh {
+        Mesh {
+            positions: dirs.iter().map(|d| d.map(|c| c * 0.41 / 0.4)).collect(),
+            normals: dirs.iter().map(|d| d.map(|c| c / 0.4)).collect(),
+            colors: None,
+            indices: Vec::new(),
+        }
     }
 
     /// `n` points on the unit sphere's surface scaled to radius 0.4 (a cloud the size of the

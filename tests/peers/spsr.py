@@ -84,6 +84,15 @@ def run_metrics(cmd, gt, recon):
     return m
 
 
+def emit(row, log):
+    """One cloud's row as a JSON line, on stdout and appended to the open LOG (flushed, so an
+    interrupted run keeps what it measured)."""
+    line = json.dumps(row)
+    print(line, flush=True)
+    log.write(line + "\n")
+    log.flush()
+
+
 def eval_clouds(data, sizes, shapes=""):
     """(size, name, path) of each cloud DATA/NAME-SIZE.ply for the comma-separated SIZES and SHAPES
     (every DATA/NAME.obj when SHAPES is empty), size by size; a missing cloud is said and skipped."""
@@ -151,10 +160,7 @@ def main():
             })
         if a.metrics_cmd:
             row.update(run_metrics(a.metrics_cmd, os.path.join(a.data, f"{name}.obj"), recon))
-        line = json.dumps(row)
-        print(line, flush=True)
-        log.write(line + "\n")
-        log.flush()
+        emit(row, log)
 
 
 if __name__ == "__main__":
