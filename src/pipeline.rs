@@ -280,7 +280,7 @@ impl Engine {
 
         let mut mesh = extraction.mesh;
         // Fitted (mesh::fit::Local) and trimmed in the unit cube, against the points the network saw.
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, crate::mesh::fit::Local::for_object(plan.poisson, points.len()), None, &mut notices, &mut timings);
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, crate::mesh::fit::Local::Tangents, None, &mut notices, &mut timings);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }

@@ -91,15 +91,6 @@ pub struct FitOptions {
 pub enum Local {
     /// The weighted least-squares plane.
     Plane,
-    /// A weighted quadric over that plane (`z = a x² + b xy + c y² + f` in its frame): the plane
-    /// of a curved neighbourhood lies inside the curve (its centroid does), and a vertex laid on
-    /// it is pulled in. For the field's level set, which the fit moves most: on the tuning
-    /// shapes (cow, fandisk, suzanne) at 500 points mean CD1 x100 0.781 → 0.758, every shape
-    /// better (report shapes afterwards: 0.768 → 0.731, all three better); the field surface at
-    /// 3k 0.479 → 0.471. Not for the Poisson surface, which passes through the points already:
-    /// there the quadric of 11-20 noisy points follows their noise (10k: 0.301 → 0.318); nor
-    /// from [`QUADRIC_BELOW`] points.
-    Quadric,
     /// The plane, with its offset moved towards the mean offset of the vertex to its neighbours'
     /// own tangent planes (each point's PCA normal, [`TANGENT_NORMAL_NEIGHBOURS`]; implicit MLS,
     /// Kolluri 2005, as RIMLS evaluates it). The plane of a curved neighbourhood lies inside the
@@ -109,31 +100,12 @@ pub enum Local {
     /// only where the two offsets differ by more than the noise of the plane's explains
     /// ([`TANGENT_SHRINK`]), and not at all on clouds noisier than the clean eval clouds
     /// ([`TANGENT_NOISE`]), where the tangent planes' tilt adds more error than the sag it
-    /// removes. For the Poisson surface: measured in docs/fit.md ("The neighbours' tangent
-    /// planes").
+    /// removes. Every object's mesh, the Poisson surface and the field's level set at any size
+    /// (scenes keep the plane: their coordinates are not the unit cube the noise gate is set in):
+    /// measured in docs/fit.md ("The neighbours' tangent planes"), where it also replaced a
+    /// weighted quadric over the plane for the field's level set below 5,000 points.
     Tangents,
 }
-
-impl Local {
-    /// What one object's mesh of `points` points is fitted onto: the plane with its neighbours'
-    /// tangent planes for the Poisson surface (`poisson`), quadrics for the field's level set
-    /// below [`QUADRIC_BELOW`] points and planes above, as measured above.
-    pub fn for_object(poisson: bool, points: usize) -> Local {
-        if poisson {
-            Local::Tangents
-        } else if points < QUADRIC_BELOW {
-            Local::Quadric
-        } else {
-            Local::Plane
-        }
-    }
-}
-
-/// The field's level set is fitted onto quadrics below this many points: better at 500 and 3k
-/// (both sets of shapes), mixed at 10k (tuning shapes 0.396 → 0.393 on suzanne alone; report
-/// shapes spot +0.011, teapot +0.018, and spot-10k's NC 0.951 → 0.943, where 20-point planes
-/// sag little against the noise). Between the two sizes measured.
-pub const QUADRIC_BELOW: usize = 5_000;
 
 impl FitOptions {
     /// The neighbourhood for a cloud of `n` points, chosen on three of the six eval shapes (cow,
@@ -307,11 +279,6 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
             let plane = if within { plane(points, &near, opts.scale as f64) } else { None };
             if let Some((c, n)) = plane.filter(|&(_, n)| dot(n, n_mesh.map(f64::from)).abs() >= MIN_COS) {
                 let mut off = dot(sub(v.map(f64::from), c), n);
-                if opts.local == Local::Quadric {
-                    // Onto the quadric's height at the vertex's foot; the plane where the
-                    // quadric is not defined (points along a line).
-                    off -= quadric_height(points, &near, opts.scale as f64, (c, n), v.map(f64::from)).unwrap_or(0.0);
-                }
                 if let Some(normals) = &point_normals {
                     let (off_t, var) = tangent_offset(points, normals, &near, opts.scale as f64, (c, n), v.map(f64::from));
                     let d = off_t - off;
@@ -541,42 +508,6 @@ fn tangent_offset(points: &[[f32; 3]], normals: &[[f32; 3]], near: &[(f32, u32)]
     (off / sw, res2 / sw * sw2 / (sw * sw))
 }
 
-/// The height over the plane `(c, n)` at `v`'s foot of the quadric `z = a x² + b xy + c y² + f`
-/// fitted to `near` by weighted least squares (the plane's Gaussian weights) in the plane's frame,
-/// or None where its normal equations are singular.
-fn quadric_height(points: &[[f32; 3]], near: &[(f32, u32)], scale: f64, (c, n): ([f64; 3], [f64; 3]), v: [f64; 3]) -> Option<f64> {
-    let t1 = {
-        let x = cross(n, if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] });
-        let l = dot(x, x).sqrt();
-        x.map(|a| a / l)
-    };
-    let t2 = cross(n, t1);
-    let h2 = (scale * scale * near.last()?.0 as f64).max(f64::MIN_POSITIVE);
-    let mut ata = [0.0f64; 16];
-    let mut atb = [0.0f64; 4];
-    for &(d2, i) in near {
-        let w = (-(d2 as f64) / h2).exp();
-        let q = sub(points[i as usize].map(f64::from), c);
-        let (x, y, z) = (dot(q, t1), dot(q, t2), dot(q, n));
-        let row = [x * x, x * y, y * y, 1.0];
-        for a in 0..4 {
-            for b in 0..4 {
-                ata[a * 4 + b] += w * row[a] * row[b];
-            }
-            atb[a] += w * row[a] * z;
-        }
-    }
-    for a in 0..3 {
-        ata[a * 4 + a] += 1e-30;
-    }
-    let l = crate::krr::linalg::cholesky(&ata, 4, "the fit's quadric").ok()?;
-    let [qa, qb, qc, qf]: [f64; 4] = crate::krr::linalg::cholesky_solve(&l, 4, &atb, 1).try_into().ok()?;
-    let q = sub(v, c);
-    let (x, y) = (dot(q, t1), dot(q, t2));
-    let h = qa * x * x + qb * x * y + qc * y * y + qf;
-    h.is_finite().then_some(h)
-}
-
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -668,31 +599,10 @@ mod tests {
     }
 
     /// On a sphere (radius 0.4, 3000 exact points, the fit's 3k neighbourhood) vertices
-    /// hovering 0.01 outside land on the plane of their neighbours, inside the sphere by the
-    /// curve's sag (measured −4.3e-4), and on the quadric within a fraction of that (−7.7e-5).
-    #[test]
-    fn a_quadric_lands_on_the_curve_where_the_plane_falls_inside() {
-        let points = noisy_sphere(3000, 0.0);
-        let opts = FitOptions::for_points(points.len());
-        let dirs = noisy_sphere(200, 0.0);
-        let start: Vec<[f32; 3]> = dirs.iter().map(|d| d.map(|c| c * 0.41 / 0.4)).collect();
-        let normals: Vec<[f32; 3]> = dirs.iter().map(|d| d.map(|c| c / 0.4)).collect();
-        let bias = |local: Local| {
-            let mut mesh = Mesh { positions: start.clone(), normals: normals.clone(), colors: None, indices: Vec::new() };
-            let r = fit_to_points(&mut mesh, &points, &FitOptions { smoothing: 0, local, ..opts });
-            assert_eq!(r.moved, start.len());
-            let radii: Vec<f64> = mesh.positions.iter().map(|v| v.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt()).collect();
-            radii.iter().map(|r| r - 0.4).sum::<f64>() / radii.len() as f64
-        };
-        let (plane, quadric) = (bias(Local::Plane), bias(Local::Quadric));
-        println!("mean radius error: plane {plane:e}, quadric {quadric:e}");
-        assert!(plane < -2e-4, "the plane lies inside the curve: {plane:e}");
-        assert!(quadric.abs() < 0.3 * plane.abs(), "quadric {quadric:e} against plane {plane:e}");
-    }
-
-    /// The same vertices over the same exact sphere: with the neighbours' tangent planes
-    /// (`Local::Tangents`) the plane's sag cancels as the quadric's fit removes it, at full
-    /// weight on a clean cloud.
+    /// hovering 0.01 outside land on the plane of their neighbours inside the sphere by the
+    /// curve's sag (measured −4.3e-4); with the neighbours' tangent planes (`Local::Tangents`,
+    /// full weight on a clean cloud) the sag cancels (−4.6e-5; a weighted quadric, since
+    /// removed, left −7.7e-5).
     #[test]
     fn the_neighbours_tangent_planes_cancel_the_planes_sag() {
         let points = noisy_sphere(3000, 0.0);
