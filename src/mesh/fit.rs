@@ -279,8 +279,8 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
             let plane = if within { plane(points, &near, opts.scale as f64) } else { None };
             if let Some((c, n)) = plane.filter(|&(_, n)| dot(n, n_mesh.map(f64::from)).abs() >= MIN_COS) {
                 let mut off = dot(sub(v.map(f64::from), c), n);
-                if let Some(normals) = &point_normals {
-                    let (off_t, var) = tangent_offset(points, normals, &near, opts.scale as f64, (c, n), v.map(f64::from));
+                let tangent = point_normals.as_ref().and_then(|normals| tangent_offset(points, normals, &near, opts.scale as f64, (c, n), v.map(f64::from)));
+                if let Some((off_t, var)) = tangent {
                     let d = off_t - off;
                     if d != 0.0 {
                         off += tangents * d * d / (d * d + TANGENT_SHRINK * var) * d;
@@ -453,8 +453,7 @@ fn smooth(values: &[[f64; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> 
 /// The weighted centroid and unit normal of the plane through `near` (squared distances and
 /// indices into `points`, nearest first), or None when the neighbourhood is degenerate.
 fn plane(points: &[[f32; 3]], near: &[(f32, u32)], scale: f64) -> Option<([f64; 3], [f64; 3])> {
-    let dk2 = near.last()?.0 as f64;
-    let h2 = (scale * scale * dk2).max(f64::MIN_POSITIVE);
+    let h2 = width2(near, scale)?;
     let mut wsum = 0.0;
     let mut c = [0.0f64; 3];
     for &(d2, i) in near {
@@ -486,10 +485,10 @@ fn plane(points: &[[f32; 3]], near: &[(f32, u32)], scale: f64) -> Option<([f64; 
 /// [`Local::Tangents`]' two numbers at vertex `v` over the plane `(c, n)` of `near` (the
 /// plane's Gaussian weights): the weighted mean of `v`'s offsets to the neighbours' tangent
 /// planes (their `normals` turned to agree with `n`), and the variance of the plane's own offset
-/// (the weighted mean squared residual of the neighbours over their effective count).
-fn tangent_offset(points: &[[f32; 3]], normals: &[[f32; 3]], near: &[(f32, u32)], scale: f64, (c, n): ([f64; 3], [f64; 3]), v: [f64; 3]) -> (f64, f64) {
-    let dk2 = near.last().map_or(0.0, |l| l.0 as f64);
-    let h2 = (scale * scale * dk2).max(f64::MIN_POSITIVE);
+/// (the weighted mean squared residual of the neighbours over their effective count); None
+/// where the weights vanish (as [`plane`], which is then None first).
+fn tangent_offset(points: &[[f32; 3]], normals: &[[f32; 3]], near: &[(f32, u32)], scale: f64, (c, n): ([f64; 3], [f64; 3]), v: [f64; 3]) -> Option<(f64, f64)> {
+    let h2 = width2(near, scale)?;
     let (mut sw, mut sw2, mut off, mut res2) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for &(d2, i) in near {
         let w = (-(d2 as f64) / h2).exp();
@@ -501,11 +500,15 @@ fn tangent_offset(points: &[[f32; 3]], normals: &[[f32; 3]], near: &[(f32, u32)]
         off += w * dot(sub(v, p), ni);
         res2 += w * dot(sub(p, c), n).powi(2);
     }
-    if !(sw > 0.0) {
-        return (0.0, 0.0);
-    }
     // Effective count (Σw)²/Σw², so the variance of the mean is (Σw·r²/Σw)·Σw²/(Σw)².
-    (off / sw, res2 / sw * sw2 / (sw * sw))
+    (sw > 0.0).then(|| (off / sw, res2 / sw * sw2 / (sw * sw)))
+}
+
+/// The squared width of the fit's Gaussian weights `exp(−d²/h²)` over the neighbourhood `near`
+/// (nearest first): `h = scale` × the farthest neighbour's distance; None without neighbours.
+fn width2(near: &[(f32, u32)], scale: f64) -> Option<f64> {
+    let dk2 = near.last()?.0 as f64;
+    Some((scale * scale * dk2).max(f64::MIN_POSITIVE))
 }
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
