@@ -525,9 +525,9 @@ pub async fn reconstruct(
     // Two layers of a sheet closer than half a cell are one surface: the grid cannot mesh a
     // slab that thin as two.
     let sheet_gap = (0.5 * tiles.cell) as f32;
-    // Planes, as the scenes were measured with: the tangent planes' noise gate (mesh::fit::Local::Tangents)
-    // is set in the unit cube objects are fitted in, not in a scene's metres.
-    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, crate::mesh::fit::Local::Plane, Some(sheet_gap), &mut notices, &mut timings);
+    // A scene's own fit (mesh::fit::Fitted::Scene): the tangent planes' noise gate is set in the
+    // unit cube objects are fitted in, not in a scene's metres.
+    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, crate::mesh::fit::Fitted::Scene, Some(sheet_gap), &mut notices, &mut timings);
     if settings.colors && cloud.colors.is_some() {
         crate::mesh::colour::transfer(&mut mesh, cloud, crate::mesh::colour::DEFAULT_K);
     }

@@ -3,7 +3,7 @@
 //! trim of what was never scanned and the simplification, each when the settings ask for it
 //! (the plan's "finish").
 
-use super::fit::{fit_cloud, FitReport, Local};
+use super::fit::{fit_cloud, FitReport, Fitted};
 use super::sheets::single_layer;
 use super::simplify::{simplify, SimplifyReport, Target};
 use super::trim::{trim, TrimReport};
@@ -19,7 +19,7 @@ pub struct Finished {
 }
 
 /// Finishes `mesh` against `points` as `settings` ask, adding what it says to `notices` and
-/// each step's seconds to `timings`. `local`: what the fit lays vertices on ([`Local`]).
+/// each step's seconds to `timings`. `fitted`: what the mesh is, which decides the fit ([`Fitted`]).
 /// `sheet_gap`: a scene's (with [`Settings::one_layer`]), the most two coincident layers lie
 /// apart after the fit ([`single_layer`]); objects pass None.
 #[allow(clippy::too_many_arguments)]
@@ -27,7 +27,7 @@ pub fn finish(
     mesh: &mut Mesh,
     points: &[[f32; 3]],
     settings: &Settings,
-    local: Local,
+    fitted: Fitted,
     sheet_gap: Option<f32>,
     notices: &mut Vec<String>,
     timings: &mut Vec<(&'static str, f64)>,
@@ -38,7 +38,7 @@ pub fn finish(
     }
     let fit = settings.fit.then(|| {
         let t = now();
-        let r = fit_cloud(mesh, points, settings.fit_noise, local);
+        let r = fit_cloud(mesh, points, fitted, settings.fit_noise);
         timings.push(("fit", now() - t));
         notices.extend(r.notice());
         r

@@ -16,7 +16,9 @@
 //! when the plane's normal is more than about 75° from the mesh's own normal there (two sheets of
 //! a thin part, or a corner, in one neighbourhood: the plane would cut across the surface).
 //! The moves are then averaged over each vertex's mesh neighbours a few times (`smoothing`), so
-//! the noise of each small plane fit does not reach the surface's normals.
+//! the noise of each small plane fit does not reach the surface's normals. The field's own level
+//! set is low-passed first and its planes are averaged instead of its moves ([`Fitted::Field`]):
+//! averaged moves would carry the field's ripples through.
 
 use super::types::Mesh;
 use crate::sample::{mean_spacing, PointIndex};
@@ -43,6 +45,11 @@ pub struct FitReport {
     /// planes (0.5 on a clean cloud, less on a noisier one, 0 on a noisy one); None with
     /// another local surface.
     pub tangents: Option<f64>,
+    /// Taubin pairs taken off the mesh first ([`Fitted::Field`]; 0: none).
+    pub low_pass: usize,
+    /// What the rounds averaged, and how many rounds.
+    pub average: Average,
+    pub rounds: usize,
 }
 
 impl FitReport {
@@ -58,11 +65,10 @@ impl FitReport {
     }
 }
 
-/// The last fit as the pipeline runs it: [`FitOptions::for_cloud`] onto `local` surfaces, then
-/// [`fit_to_points`].
-pub fn fit_cloud(mesh: &mut Mesh, points: &[[f32; 3]], follow_noise: bool, local: Local) -> FitReport {
-    let (mut opts, noise) = FitOptions::for_cloud(points, follow_noise);
-    opts.local = local;
+/// The last fit as the pipeline runs it on a mesh of kind `fitted`: [`FitOptions::for_cloud`],
+/// then [`fit_to_points`].
+pub fn fit_cloud(mesh: &mut Mesh, points: &[[f32; 3]], fitted: Fitted, follow_noise: bool) -> FitReport {
+    let (opts, noise) = FitOptions::for_cloud(points, fitted, follow_noise);
     let usual = FitOptions::for_points(points.len()).k;
     let mut report = fit_to_points(mesh, points, &opts);
     report.widened = (opts.k > usual).then_some((noise, usual));
@@ -82,9 +88,48 @@ pub struct FitOptions {
     /// edges) before it is applied: each plane is fitted to a few noisy points, and moving every
     /// vertex on its own would carry that noise into the surface's normals.
     pub smoothing: usize,
+    /// What those rounds average.
+    pub average: Average,
+    /// Pairs of Taubin steps taken on the mesh before the fit ([`Fitted::Field`]), 0 for none.
+    pub low_pass: usize,
     /// What each vertex is laid on.
     pub local: Local,
 }
+
+/// What the mesh to be fitted is: it decides what the fit does (measured per kind in
+/// docs/fit.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fitted {
+    /// An object's Poisson surface, smooth between the points already: [`Local::Tangents`], the
+    /// moves averaged ([`FitOptions::for_points`]).
+    Poisson,
+    /// An object's field level set (below 2,000 points, `--surface field`, one-sided scans). The
+    /// field has ripples a few mesh edges long that follow its feature planes' grid (terraces
+    /// on smooth parts where the points are sparse: issue 26's grooves). Averaging the moves
+    /// would keep them (each vertex moves by its neighbours' mean move and keeps its own ripple),
+    /// so the mesh is low-passed first ([`FIELD_LOW_PASS`] Taubin pairs, which take off the
+    /// shortest ripples without shrinking the shape), and then the planes are averaged instead
+    /// of the moves, over twice the rounds: each vertex is projected onto its averaged plane,
+    /// which removes what ripple is left. Chosen on the tuning shapes at 500 points (docs/fit.md).
+    Field,
+    /// A scene's tiles: the least-squares planes alone, the moves averaged (as the scenes were
+    /// measured: the tangent planes' noise gate is set in an object's unit cube).
+    Scene,
+}
+
+/// What the fit's rounds average over the mesh.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Average {
+    /// Each vertex's move: the field's own shape between the points stays, ripples included.
+    #[default]
+    Moves,
+    /// Each vertex's plane, then the vertex is projected onto the averaged one ([`Fitted::Field`]).
+    Planes,
+}
+
+/// [`Fitted::Field`]'s Taubin pairs before the fit: 20, 40 and 80 measured on the tuning shapes
+/// at 500 points with the planes averaged; 40 and 80 the same, 20 a little less smooth.
+const FIELD_LOW_PASS: usize = 40;
 
 /// The local surface each vertex is moved onto, fitted to its neighbours.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -118,7 +163,17 @@ impl FitOptions {
         let k = (0.2 * n.sqrt()).round().clamp(8.0, 32.0) as usize;
         let t = ((n.log10() - 500f64.log10()) / (10_000f64.log10() - 500f64.log10())).clamp(0.0, 1.0);
         let smoothing = (10.0 - 7.7 * (n.log10() - 500f64.log10())).round().clamp(0.0, 12.0) as usize;
-        FitOptions { k, scale: (0.45 + 0.1 * t) as f32, max_distance: 3.0, smoothing, local: Local::Plane }
+        FitOptions { k, scale: (0.45 + 0.1 * t) as f32, max_distance: 3.0, smoothing, average: Average::Moves, low_pass: 0, local: Local::Plane }
+    }
+
+    /// [`FitOptions::for_points`] for a mesh of kind `fitted` (see [`Fitted`]).
+    pub fn for_mesh(n: usize, fitted: Fitted) -> FitOptions {
+        let o = FitOptions::for_points(n);
+        match fitted {
+            Fitted::Poisson => FitOptions { local: Local::Tangents, ..o },
+            Fitted::Field => FitOptions { local: Local::Tangents, average: Average::Planes, smoothing: 2 * o.smoothing, low_pass: FIELD_LOW_PASS, ..o },
+            Fitted::Scene => o,
+        }
     }
 
     /// [`FitOptions::for_points`] for `points`, with the neighbourhood widened where the cloud
@@ -129,8 +184,8 @@ impl FitOptions {
     /// 0.015, 0.02 at 3k and 10k; the smoothing rounds were not changed); clean clouds fall below
     /// the threshold and keep the rules as they were. Not yet the default (setting `fitNoise`).
     /// Also returns the noise measured (0 when `follow_noise` is off).
-    pub fn for_cloud(points: &[[f32; 3]], follow_noise: bool) -> (FitOptions, f64) {
-        let mut o = FitOptions::for_points(points.len());
+    pub fn for_cloud(points: &[[f32; 3]], fitted: Fitted, follow_noise: bool) -> (FitOptions, f64) {
+        let mut o = FitOptions::for_mesh(points.len(), fitted);
         if !follow_noise {
             return (o, 0.0);
         }
@@ -254,6 +309,11 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
         report.kept = mesh.positions.len();
         return report;
     }
+    if opts.low_pass > 0 {
+        low_pass(mesh, opts.low_pass);
+        mesh.compute_vertex_normals();
+        report.low_pass = opts.low_pass;
+    }
     if mesh.normals.len() != mesh.positions.len() {
         mesh.compute_vertex_normals();
     }
@@ -267,9 +327,10 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     let point_normals = (tangents > 0.0)
         .then(|| crate::orient::pca_normals(points, &crate::orient::neighbourhoods(points, TANGENT_NORMAL_NEIGHBOURS, 1)));
     report.tangents = (opts.local == Local::Tangents).then_some(tangents);
-    // Each vertex's move onto its plane (zero where it stays), the vertices split over the cores.
-    let mut moves = vec![[0.0f64; 3]; mesh.positions.len()];
-    let moved = crate::par::fill(&mut moves, |start, chunk| {
+    // Each vertex's plane (a point on it and its normal, turned to the mesh's side; None where it
+    // stays), the vertices split over the cores.
+    let mut planes: Vec<Option<([f64; 3], [f64; 3])>> = vec![None; mesh.positions.len()];
+    let moved = crate::par::fill(&mut planes, |start, chunk| {
         let mut near = Vec::with_capacity(k);
         let mut moved = 0;
         for (i, m) in (start..).zip(chunk.iter_mut()) {
@@ -286,15 +347,30 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
                         off += tangents * d * d / (d * d + TANGENT_SHRINK * var) * d;
                     }
                 }
-                *m = n.map(|x| -off * x);
+                // The same projection whichever way n points; turned to the mesh's side so
+                // that neighbours' normals can be averaged.
+                let (n, off) = if dot(n, n_mesh.map(f64::from)) < 0.0 { (n.map(|x| -x), -off) } else { (n, off) };
+                *m = Some((sub(v.map(f64::from), n.map(|x| off * x)), n));
                 moved += 1;
             }
         }
         moved
     });
     report.moved = moved.iter().sum();
-    report.kept = moves.len() - report.moved;
-    let moves = smooth(&moves, &mesh.indices, opts.smoothing);
+    report.kept = planes.len() - report.moved;
+    let moves = match opts.average {
+        Average::Planes => smooth_planes(&planes, &mesh.positions, &mesh.indices, opts.smoothing),
+        Average::Moves => {
+            let moves: Vec<[f64; 3]> = planes
+                .iter()
+                .zip(&mesh.positions)
+                .map(|(p, v)| p.map_or([0.0; 3], |(q, _)| sub(q, v.map(f64::from))))
+                .collect();
+            smooth(&moves, &mesh.indices, opts.smoothing)
+        }
+    };
+    report.average = opts.average;
+    report.rounds = opts.smoothing;
     let before: Vec<[f64; 3]> = triangle_normals(&mesh.positions, &mesh.indices);
     let mut shift = 0.0f64;
     for (v, d) in mesh.positions.iter_mut().zip(&moves) {
@@ -450,6 +526,84 @@ fn smooth(values: &[[f64; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> 
     cur
 }
 
+/// Taubin's λ|μ smoothing of the positions (`pairs` pairs of uniform umbrella steps, λ = 0.5,
+/// μ = −0.53): ripples a few edges long fade, shapes many edges long keep their size, where
+/// plain umbrella steps would shrink them. What [`Fitted::Field`] takes off the field's level
+/// set before the fit (see there).
+fn low_pass(mesh: &mut Mesh, pairs: usize) {
+    let n = mesh.positions.len();
+    let neighbours = Neighbours::of(&mesh.indices, n);
+    let (lambda, mu) = (0.5f64, -0.53f64);
+    let mut cur: Vec<[f64; 3]> = mesh.positions.iter().map(|p| p.map(f64::from)).collect();
+    let mut next = cur.clone();
+    for step in 0..2 * pairs {
+        let f = if step % 2 == 0 { lambda } else { mu };
+        for (i, out) in next.iter_mut().enumerate() {
+            let row = neighbours.of_vertex(i);
+            let len = row.len();
+            if len == 0 {
+                *out = cur[i];
+                continue;
+            }
+            let mut mean = [0.0f64; 3];
+            for j in row {
+                for a in 0..3 {
+                    mean[a] += cur[j][a] / len as f64;
+                }
+            }
+            *out = [0, 1, 2].map(|a| cur[i][a] + f * (mean[a] - cur[i][a]));
+        }
+        std::mem::swap(&mut cur, &mut next);
+    }
+    for (p, c) in mesh.positions.iter_mut().zip(&cur) {
+        *p = c.map(|x| x as f32);
+    }
+}
+
+/// Each vertex's move onto its plane after `rounds` rounds of averaging the planes (not the
+/// moves) over the vertex and its mesh neighbours ([`Average::Planes`]): a neighbour's plane
+/// counts as the projection of the vertex onto it and its normal, a vertex without a plane as
+/// weight 0. The final move is the projection onto the averaged plane times the averaged weight
+/// (1 inside the fitted part, fading to 0 across its edge, as the moves' average does). With no
+/// rounds this is the plain projection, as [`Average::Moves`].
+fn smooth_planes(planes: &[Option<([f64; 3], [f64; 3])>], positions: &[[f32; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> {
+    let n = planes.len();
+    let mut cur: Vec<(f64, [f64; 3], [f64; 3])> = planes.iter().map(|p| p.map_or((0.0, [0.0; 3], [0.0; 3]), |(q, nn)| (1.0, q, nn))).collect();
+    if rounds > 0 && n > 0 {
+        let neighbours = Neighbours::of(indices, n);
+        let mut next = cur.clone();
+        for _ in 0..rounds {
+            for (i, out) in next.iter_mut().enumerate() {
+                let v = positions[i].map(f64::from);
+                let (mut sw, mut sn, mut sp) = (0.0f64, [0.0f64; 3], [0.0f64; 3]);
+                let mut count = 0usize;
+                for j in std::iter::once(i).chain(neighbours.of_vertex(i)) {
+                    count += 1;
+                    let (w, q, nn) = cur[j];
+                    if w > 0.0 {
+                        let off = dot(sub(v, q), nn);
+                        for a in 0..3 {
+                            sn[a] += w * nn[a];
+                            sp[a] += w * (v[a] - off * nn[a]);
+                        }
+                        sw += w;
+                    }
+                }
+                let len = dot(sn, sn).sqrt();
+                *out = if sw > 0.0 && len > 0.0 { (sw / count as f64, sp.map(|x| x / sw), sn.map(|x| x / len)) } else { (0.0, [0.0; 3], [0.0; 3]) };
+            }
+            std::mem::swap(&mut cur, &mut next);
+        }
+    }
+    cur.iter()
+        .zip(positions)
+        .map(|(&(w, q, nn), v)| {
+            let off = dot(sub(v.map(f64::from), q), nn);
+            nn.map(|x| -w * off * x)
+        })
+        .collect()
+}
+
 /// The weighted centroid and unit normal of the plane through `near` (squared distances and
 /// indices into `points`, nearest first), or None when the neighbourhood is degenerate.
 fn plane(points: &[[f32; 3]], near: &[(f32, u32)], scale: f64) -> Option<([f64; 3], [f64; 3])> {
@@ -583,7 +737,7 @@ mod tests {
             colors: None,
             indices: vec![0, 1, 2, 1, 3, 2],
         };
-        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, local: Local::Plane });
+        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, average: Average::Moves, low_pass: 0, local: Local::Plane });
         assert_eq!((r.moved, r.kept), (3, 1));
         for v in &mesh.positions[..3] {
             assert!((v[2] - 0.1).abs() < 1e-6, "{v:?}");
@@ -688,13 +842,13 @@ mod tests {
     #[test]
     fn a_noisy_cloud_gets_a_wider_neighbourhood() {
         let usual = FitOptions::for_points(3000);
-        let (clean, _) = FitOptions::for_cloud(&noisy_sphere(3000, 0.004), true);
+        let (clean, _) = FitOptions::for_cloud(&noisy_sphere(3000, 0.004), Fitted::Scene, true);
         assert_eq!(clean, usual, "at the eval clouds' noise the rules are unchanged");
-        let (noisy, noise) = FitOptions::for_cloud(&noisy_sphere(3000, 0.02), true);
+        let (noisy, noise) = FitOptions::for_cloud(&noisy_sphere(3000, 0.02), Fitted::Scene, true);
         let expected = ((usual.k as f64 * (noise / clean_noise(3000)).powi(2)).round() as usize).min(MAX_NEIGHBOURS);
         assert!(noisy.k > 2 * usual.k && noisy.k == expected, "{} vs {} ({noise})", noisy.k, usual.k);
         assert_eq!((noisy.smoothing, noisy.scale), (usual.smoothing, usual.scale));
-        let (off, _) = FitOptions::for_cloud(&noisy_sphere(3000, 0.02), false);
+        let (off, _) = FitOptions::for_cloud(&noisy_sphere(3000, 0.02), Fitted::Scene, false);
         assert_eq!(off, usual, "without --fit-noise the point count's rule stays");
         // The reference follows the point count between its entries, constant beyond.
         assert_eq!(clean_noise(100), 0.013);
@@ -702,6 +856,89 @@ mod tests {
         assert!((clean_noise(3000) - 0.005).abs() < 1e-12);
         let mid = clean_noise(1225); // √(500·3000): halfway in log n
         assert!((mid - 0.009).abs() < 1e-5, "{mid}");
+    }
+
+    /// A `side` × `side` vertex grid with spacing `edge` in x and y, at height `z(x, y)`, two
+    /// triangles a cell, facing +z.
+    fn wavy_grid(side: u32, edge: f32, z: impl Fn(f32, f32) -> f32) -> Mesh {
+        let positions: Vec<[f32; 3]> = (0..side * side)
+            .map(|i| {
+                let (x, y) = ((i % side) as f32 * edge, (i / side) as f32 * edge);
+                [x, y, z(x, y)]
+            })
+            .collect();
+        let mut indices = Vec::new();
+        for y in 0..side - 1 {
+            for x in 0..side - 1 {
+                let v = y * side + x;
+                indices.extend_from_slice(&[v, v + 1, v + side + 1, v, v + side + 1, v + side]);
+            }
+        }
+        let mut mesh = Mesh { normals: Vec::new(), positions, colors: None, indices };
+        mesh.compute_vertex_normals();
+        mesh
+    }
+
+    /// The rms of `z − 0.1` over the vertices at least `margin` from the grid's border.
+    fn ripple_rms(mesh: &Mesh, side: u32, margin: u32) -> f64 {
+        let inner: Vec<f64> = (0..side * side)
+            .filter(|i| (margin..side - margin).contains(&(i % side)) && (margin..side - margin).contains(&(i / side)))
+            .map(|i| mesh.positions[i as usize][2] as f64 - 0.1)
+            .collect();
+        (inner.iter().map(|d| d * d).sum::<f64>() / inner.len() as f64).sqrt()
+    }
+
+    /// Taubin's pairs take off a ripple 4 edges long (measured: to 1.6 %) and keep a wave 40 edges
+    /// long (+0.9 %): the shape stays (plain umbrella steps shrink waves of every length).
+    #[test]
+    fn the_low_pass_takes_ripples_not_shapes() {
+        let (side, edge) = (81, 0.01);
+        let wave = |period: f32, amplitude: f32| move |x: f32, _y: f32| 0.1 + amplitude * (std::f32::consts::TAU * x / (period * edge)).sin();
+        let mut short = wavy_grid(side, edge, wave(4.0, 0.003));
+        let mut long = wavy_grid(side, edge, wave(40.0, 0.01));
+        let (short0, long0) = (ripple_rms(&short, side, 10), ripple_rms(&long, side, 10));
+        low_pass(&mut short, FIELD_LOW_PASS);
+        low_pass(&mut long, FIELD_LOW_PASS);
+        let (short1, long1) = (ripple_rms(&short, side, 10), ripple_rms(&long, side, 10));
+        println!("ripple rms {short0:e} -> {short1:e}, long wave {long0:e} -> {long1:e}");
+        assert!(short1 < 0.05 * short0, "the ripple stays: {short0:e} -> {short1:e}");
+        assert!((long1 / long0 - 1.0).abs() < 0.03, "the long wave changed: {long0:e} -> {long1:e}");
+    }
+
+    /// The field's ripples (here 4 edges long, 0.003 high, over points on the plane z = 0.1 at
+    /// about 500 points' spacing in the unit cube): averaging the moves keeps them, the field's
+    /// fit (the low pass, then the planes averaged) leaves next to nothing of them.
+    #[test]
+    fn the_fields_ripples_do_not_survive_the_fit() {
+        let (side, edge) = (61, 0.01);
+        let ripple = |x: f32, _y: f32| 0.1 + 0.003 * (std::f32::consts::TAU * x / (4.0 * edge)).sin();
+        let mut rng = crate::rng::SplitMix64(3);
+        let points: Vec<[f32; 3]> = (0..500).map(|_| [(rng.unit() * 0.6) as f32, (rng.unit() * 0.6) as f32, 0.1]).collect();
+        let fit = |fitted: Fitted| {
+            let mut mesh = wavy_grid(side, edge, ripple);
+            let r = fit_to_points(&mut mesh, &points, &FitOptions::for_mesh(points.len(), fitted));
+            (ripple_rms(&mesh, side, 8), r)
+        };
+        let ((moves, _), (field, report)) = (fit(Fitted::Poisson), fit(Fitted::Field));
+        println!("ripple rms after the fit: moves averaged {moves:e}, the field's fit {field:e}");
+        assert_eq!((report.low_pass, report.average, report.rounds), (FIELD_LOW_PASS, Average::Planes, 20));
+        assert!(moves > 1e-3, "averaging the moves should keep the ripple: {moves:e}");
+        assert!(field < 0.05 * moves, "the field's fit kept the ripple: {field:e} against {moves:e}");
+    }
+
+    /// With no rounds, averaging the planes is the plain projection, as averaging the moves.
+    #[test]
+    fn planes_without_rounds_are_the_projection() {
+        let points: Vec<[f32; 3]> = (0..21).flat_map(|i| (0..21).map(move |j| [i as f32 * 0.03, j as f32 * 0.03, 0.1])).collect();
+        let fit = |average: Average| {
+            let mut mesh = wavy_grid(31, 0.02, |x, y| 0.1 + 0.004 * (x * 40.0).sin() * (y * 30.0).cos());
+            let opts = FitOptions { smoothing: 0, average, ..FitOptions::for_points(points.len()) };
+            fit_to_points(&mut mesh, &points, &opts);
+            mesh.positions
+        };
+        let (moves, planes) = (fit(Average::Moves), fit(Average::Planes));
+        let worst = moves.iter().zip(&planes).flat_map(|(a, b)| (0..3).map(move |i| (a[i] - b[i]).abs())).fold(0.0f32, f32::max);
+        assert!(worst < 1e-6, "{worst:e}");
     }
 
     #[test]
@@ -725,7 +962,7 @@ mod tests {
             colors: None,
             indices: vec![],
         };
-        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, local: Local::Plane });
+        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, average: Average::Moves, low_pass: 0, local: Local::Plane });
         assert_eq!((r.moved, r.kept), (0, 1));
         assert_eq!(mesh.positions[0], [0.01, 0.05, 0.05]);
     }

@@ -337,7 +337,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     }
     if let Some(f) = &rec.fit {
         tell!(
-            "fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone; {} triangles turned over, {} after the repair{}",
+            "fit to the points: {} vertices moved (mean {:.2} spacings), {} left alone; {} triangles turned over, {} after the repair{}{}",
             f.moved,
             f.mean_shift,
             f.kept,
@@ -347,6 +347,11 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
                 Some(w) if w > 0.0 => format!("; each plane moved up to {w:.2} of the way to the neighbours' tangent planes"),
                 Some(_) => "; planes alone (the cloud is noisier than a clean scan)".to_string(),
                 None => String::new(),
+            },
+            match (f.low_pass, f.average) {
+                (0, _) => String::new(),
+                (pairs, nkrr::mesh::fit::Average::Planes) => format!("; the field's ripples smoothed first ({pairs} Taubin pairs), its planes averaged over {} rounds", f.rounds),
+                (pairs, _) => format!("; the field's ripples smoothed first ({pairs} Taubin pairs)"),
             }
         );
     }
