@@ -280,8 +280,7 @@ impl Engine {
 
         let mut mesh = extraction.mesh;
         // Fitted and trimmed in the unit cube, against the points the network saw.
-        let fitted = if plan.poisson { crate::mesh::fit::Fitted::Poisson } else { crate::mesh::fit::Fitted::Field };
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, fitted, None, &mut notices, &mut timings);
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, crate::mesh::fit::Fitted::object(plan.poisson), None, &mut notices, &mut timings);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }

@@ -30,7 +30,8 @@ pub struct FitReport {
     pub moved: usize,
     /// Vertices left alone: no point within reach, or a plane across the surface.
     pub kept: usize,
-    /// Mean distance a moved vertex travelled, in units of the cloud's mean spacing.
+    /// Mean distance a moved vertex travelled onto its plane (after the low pass, where there is
+    /// one), in units of the cloud's mean spacing.
     pub mean_shift: f64,
     /// Triangles the moves turned over (normal against the field's mesh), before and after the
     /// repair (see [`fit_to_points`]).
@@ -115,6 +116,17 @@ pub enum Fitted {
     /// A scene's tiles: the least-squares planes alone, the moves averaged (as the scenes were
     /// measured: the tangent planes' noise gate is set in an object's unit cube).
     Scene,
+}
+
+impl Fitted {
+    /// An object's mesh: its Poisson surface, or else the field's level set.
+    pub fn object(poisson_surface: bool) -> Fitted {
+        if poisson_surface {
+            Fitted::Poisson
+        } else {
+            Fitted::Field
+        }
+    }
 }
 
 /// What the fit's rounds average over the mesh.
