@@ -321,8 +321,13 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
         report.kept = mesh.positions.len();
         return report;
     }
+    // The mesh's edges, found once for whichever of the low pass, the rounds and the repair of
+    // turned-over triangles need them (the fit does not change the triangles).
+    let n_vertices = mesh.positions.len();
+    let mut edges: Option<Neighbours> = None;
     if opts.low_pass > 0 {
-        low_pass(mesh, opts.low_pass);
+        let neighbours = edges.get_or_insert_with(|| Neighbours::of(&mesh.indices, n_vertices));
+        low_pass(mesh, neighbours, opts.low_pass);
         mesh.compute_vertex_normals();
         report.low_pass = opts.low_pass;
     }
@@ -370,15 +375,18 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     });
     report.moved = moved.iter().sum();
     report.kept = planes.len() - report.moved;
+    if opts.smoothing > 0 {
+        edges.get_or_insert_with(|| Neighbours::of(&mesh.indices, n_vertices));
+    }
     let moves = match opts.average {
-        Average::Planes => smooth_planes(&planes, &mesh.positions, &mesh.indices, opts.smoothing),
+        Average::Planes => smooth_planes(&planes, &mesh.positions, edges.as_ref(), opts.smoothing),
         Average::Moves => {
             let moves: Vec<[f64; 3]> = planes
                 .iter()
                 .zip(&mesh.positions)
                 .map(|(p, v)| p.map_or([0.0; 3], |(q, _)| sub(q, v.map(f64::from))))
                 .collect();
-            smooth(&moves, &mesh.indices, opts.smoothing)
+            smooth(&moves, edges.as_ref(), opts.smoothing)
         }
     };
     report.average = opts.average;
@@ -389,7 +397,7 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
         shift += dot(*d, *d).sqrt();
         *v = [0, 1, 2].map(|a| (v[a] as f64 + d[a]) as f32);
     }
-    (report.flipped, report.flipped_after_repair) = unflip(mesh, &before);
+    (report.flipped, report.flipped_after_repair) = unflip(mesh, &before, &mut edges);
     report.mean_shift = if report.moved > 0 && spacing > 0.0 { shift / report.moved as f64 / spacing } else { 0.0 };
     mesh.compute_vertex_normals();
     report
@@ -418,8 +426,9 @@ const UNFLIP_ROUNDS: usize = 8;
 /// dark speck and breaks the surface's orientation. Each round moves the vertices of such
 /// triangles to the mean of their mesh neighbours (one umbrella step, on those vertices only),
 /// which unfolds a sliver without pulling the rest of the surface off its points. Returns the
-/// turned-over triangles before and after the repair.
-fn unflip(mesh: &mut Mesh, before: &[[f64; 3]]) -> (usize, usize) {
+/// turned-over triangles before and after the repair. `edges`: the mesh's [`Neighbours`], found
+/// here if they are not yet.
+fn unflip(mesh: &mut Mesh, before: &[[f64; 3]], edges: &mut Option<Neighbours>) -> (usize, usize) {
     let flipped = |mesh: &Mesh| -> Vec<usize> {
         triangle_normals(&mesh.positions, &mesh.indices)
             .iter()
@@ -435,7 +444,7 @@ fn unflip(mesh: &mut Mesh, before: &[[f64; 3]]) -> (usize, usize) {
         return (0, 0);
     }
     let n = mesh.positions.len();
-    let neighbours = Neighbours::of(&mesh.indices, n);
+    let neighbours = edges.get_or_insert_with(|| Neighbours::of(&mesh.indices, n));
     for _ in 0..UNFLIP_ROUNDS {
         if bad.is_empty() {
             break;
@@ -448,18 +457,8 @@ fn unflip(mesh: &mut Mesh, before: &[[f64; 3]]) -> (usize, usize) {
         }
         // Jacobi-style: every marked vertex moves to the mean of its neighbours as they were.
         let moved: Vec<(usize, [f32; 3])> = (0..n)
-            .filter(|&i| marked[i] && neighbours.of_vertex(i).len() > 0)
-            .map(|i| {
-                let row = neighbours.of_vertex(i);
-                let len = row.len() as f64;
-                let mut sum = [0.0f64; 3];
-                for j in row {
-                    for a in 0..3 {
-                        sum[a] += mesh.positions[j][a] as f64;
-                    }
-                }
-                (i, sum.map(|x| (x / len) as f32))
-            })
+            .filter(|&i| marked[i])
+            .filter_map(|i| Some((i, neighbours.mean(i, &mesh.positions)?.map(|x| x as f32))))
             .collect();
         for (i, p) in moved {
             mesh.positions[i] = p;
@@ -509,16 +508,32 @@ impl Neighbours {
     fn of_vertex(&self, i: usize) -> impl ExactSizeIterator<Item = usize> + '_ {
         self.pairs[self.start[i]..self.start[i + 1]].iter().map(|&(_, j)| j as usize)
     }
+
+    /// The mean of `values` over vertex `i`'s neighbours (the umbrella's centre), summed in f64;
+    /// None for a vertex without neighbours.
+    fn mean<T: Copy + Into<f64>>(&self, i: usize, values: &[[T; 3]]) -> Option<[f64; 3]> {
+        let row = self.of_vertex(i);
+        let len = row.len() as f64;
+        if len == 0.0 {
+            return None;
+        }
+        let mut sum = [0.0f64; 3];
+        for j in row {
+            for a in 0..3 {
+                sum[a] += values[j][a].into();
+            }
+        }
+        Some(sum.map(|x| x / len))
+    }
 }
 
-/// `rounds` rounds of replacing each vertex's value by the mean over itself and its neighbours
-/// along the edges of `indices` (a uniform, Jacobi-style average).
-fn smooth(values: &[[f64; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> {
+/// `rounds` rounds of replacing each vertex's value by the mean over itself and its
+/// `neighbours` (a uniform, Jacobi-style average); none without neighbours.
+fn smooth(values: &[[f64; 3]], neighbours: Option<&Neighbours>, rounds: usize) -> Vec<[f64; 3]> {
     let n = values.len();
-    if rounds == 0 || n == 0 {
+    let Some(neighbours) = neighbours.filter(|_| rounds > 0 && n > 0) else {
         return values.to_vec();
-    }
-    let neighbours = Neighbours::of(indices, n);
+    };
     let mut cur = values.to_vec();
     let mut next = vec![[0.0f64; 3]; n];
     for _ in 0..rounds {
@@ -542,28 +557,17 @@ fn smooth(values: &[[f64; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> 
 /// μ = −0.53): ripples a few edges long fade, shapes many edges long keep their size, where
 /// plain umbrella steps would shrink them. What [`Fitted::Field`] takes off the field's level
 /// set before the fit (see there).
-fn low_pass(mesh: &mut Mesh, pairs: usize) {
-    let n = mesh.positions.len();
-    let neighbours = Neighbours::of(&mesh.indices, n);
+fn low_pass(mesh: &mut Mesh, neighbours: &Neighbours, pairs: usize) {
     let (lambda, mu) = (0.5f64, -0.53f64);
     let mut cur: Vec<[f64; 3]> = mesh.positions.iter().map(|p| p.map(f64::from)).collect();
     let mut next = cur.clone();
     for step in 0..2 * pairs {
         let f = if step % 2 == 0 { lambda } else { mu };
         for (i, out) in next.iter_mut().enumerate() {
-            let row = neighbours.of_vertex(i);
-            let len = row.len();
-            if len == 0 {
-                *out = cur[i];
-                continue;
-            }
-            let mut mean = [0.0f64; 3];
-            for j in row {
-                for a in 0..3 {
-                    mean[a] += cur[j][a] / len as f64;
-                }
-            }
-            *out = [0, 1, 2].map(|a| cur[i][a] + f * (mean[a] - cur[i][a]));
+            *out = match neighbours.mean(i, &cur) {
+                Some(mean) => [0, 1, 2].map(|a| cur[i][a] + f * (mean[a] - cur[i][a])),
+                None => cur[i],
+            };
         }
         std::mem::swap(&mut cur, &mut next);
     }
@@ -578,11 +582,9 @@ fn low_pass(mesh: &mut Mesh, pairs: usize) {
 /// weight 0. The final move is the projection onto the averaged plane times the averaged weight
 /// (1 inside the fitted part, fading to 0 across its edge, as the moves' average does). With no
 /// rounds this is the plain projection, as [`Average::Moves`].
-fn smooth_planes(planes: &[Option<([f64; 3], [f64; 3])>], positions: &[[f32; 3]], indices: &[u32], rounds: usize) -> Vec<[f64; 3]> {
-    let n = planes.len();
+fn smooth_planes(planes: &[Option<([f64; 3], [f64; 3])>], positions: &[[f32; 3]], neighbours: Option<&Neighbours>, rounds: usize) -> Vec<[f64; 3]> {
     let mut cur: Vec<(f64, [f64; 3], [f64; 3])> = planes.iter().map(|p| p.map_or((0.0, [0.0; 3], [0.0; 3]), |(q, nn)| (1.0, q, nn))).collect();
-    if rounds > 0 && n > 0 {
-        let neighbours = Neighbours::of(indices, n);
+    if let Some(neighbours) = neighbours.filter(|_| rounds > 0) {
         let mut next = cur.clone();
         for _ in 0..rounds {
             for (i, out) in next.iter_mut().enumerate() {
@@ -719,14 +721,14 @@ mod tests {
         let now = triangle_normals(&mesh.positions, &mesh.indices);
         let turned = now.iter().zip(&before).filter(|(a, b)| dot(**a, **b) <= 0.0).count();
         assert!(turned >= 2, "the set-up should turn triangles over: {turned}");
-        let (first, after) = unflip(&mut mesh, &before);
+        let (first, after) = unflip(&mut mesh, &before, &mut None);
         assert_eq!((first, after), (turned, 0));
         // Only the vertices of turned-over triangles moved; the border stayed.
         assert_eq!(mesh.positions[0], [0.0, 0.0, 0.0]);
         assert_eq!(mesh.positions[24], [4.0, 4.0, 0.0]);
         // Nothing to repair: nothing moves.
         let mut flat = grid();
-        assert_eq!(unflip(&mut flat, &before), (0, 0));
+        assert_eq!(unflip(&mut flat, &before, &mut None), (0, 0));
         assert_eq!(flat.positions, grid().positions);
     }
 
@@ -909,8 +911,9 @@ mod tests {
         let mut short = wavy_grid(side, edge, wave(4.0, 0.003));
         let mut long = wavy_grid(side, edge, wave(40.0, 0.01));
         let (short0, long0) = (ripple_rms(&short, side, 10), ripple_rms(&long, side, 10));
-        low_pass(&mut short, FIELD_LOW_PASS);
-        low_pass(&mut long, FIELD_LOW_PASS);
+        let neighbours = Neighbours::of(&short.indices, short.positions.len());
+        low_pass(&mut short, &neighbours, FIELD_LOW_PASS);
+        low_pass(&mut long, &neighbours, FIELD_LOW_PASS);
         let (short1, long1) = (ripple_rms(&short, side, 10), ripple_rms(&long, side, 10));
         println!("ripple rms {short0:e} -> {short1:e}, long wave {long0:e} -> {long1:e}");
         assert!(short1 < 0.05 * short0, "the ripple stays: {short0:e} -> {short1:e}");
@@ -957,9 +960,9 @@ mod tests {
     fn moves_are_averaged_over_mesh_neighbours() {
         // One triangle and a lone vertex: the triangle's moves mix, the lone one keeps its own.
         let moves = [[3.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 6.0, 0.0]];
-        let once = smooth(&moves, &[0, 1, 2, 0, 2, 1], 1);
+        let once = smooth(&moves, Some(&Neighbours::of(&[0, 1, 2, 0, 2, 1], moves.len())), 1);
         assert_eq!(once, vec![[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 6.0, 0.0]]);
-        assert_eq!(smooth(&moves, &[0, 1, 2], 0), moves.to_vec());
+        assert_eq!(smooth(&moves, Some(&Neighbours::of(&[0, 1, 2], moves.len())), 0), moves.to_vec());
     }
 
     #[test]
