@@ -111,19 +111,19 @@ def ablations_phase(work, shapes, run):
             "wall_s": sum(p["wall_s"] or 0 for p in parts)}
 
 
-# The levers beyond the paper (issue 14), each turned back on its own (or, for the prior mean,
-# turned on), against the defaults of the main run; and the paper's method whole.
+# The levers beyond the paper (issue 14), each turned back on its own, against the defaults of
+# the main run; and the paper's method whole.
 LEVERS = [
     ("nkrr-paper-pairs", "3: training pairs that follow density", "one extra point per input point at one scale (the paper's pairs)"),
     ("nkrr-select-training", "4: held-out iterate selection", "the iterate with the lowest training error (the paper's)"),
     ("nkrr-no-fit", "5: the last fit of the mesh to the points", "the field's level set as it is (the paper's output)"),
     ("nkrr-keep-outliers", "7: stray points and unsupported pieces", "every point and every piece kept"),
-    ("nkrr-prior-mean", "1: the network as the prior mean", "the network's logit as the regression's prior mean, turned on (not a default)"),
+    ("nkrr-zero-mean", "1: the network as the prior mean", "the regression alone as the field (the paper's zero prior mean; the network's logit is the default since issue 26's guard)"),
 ]
 # Levers measured in a second run (added later, so the first run's output stays valid).
 LEVERS2 = [
     ("nkrr-position", "2: the position in the kernel", "the kernel sees [F(q), q], turned on (not a default)"),
-    ("nkrr-position-prior-mean", "2 with 1: the position in the kernel and the network as the prior mean", "both turned on (not a default)"),
+    ("nkrr-position-zero-mean", "2 with 1: the position in the kernel, with the paper's zero prior mean", "the position turned on and the zero prior mean (neither a default)"),
 ]
 # A third run: the pairs across the surface (src/orient.rs), 0.5 chosen on cow, fandisk, suzanne.
 LEVERS3 = [
@@ -148,8 +148,8 @@ LEVERS5 = [
 # kernel) act only where the field's level set is the mesh: with the Poisson surface the
 # regression is not tuned (the network's field orients the normals). They run on the field
 # surface (`--surface field`) against nkrr-field, as do the paper's ablations.
-FIELD_LEVERS = {"nkrr-paper-pairs", "nkrr-select-training", "nkrr-prior-mean", "nkrr-position",
-                "nkrr-position-prior-mean", "nkrr-no-across"}
+FIELD_LEVERS = {"nkrr-paper-pairs", "nkrr-select-training", "nkrr-zero-mean", "nkrr-position",
+                "nkrr-position-zero-mean", "nkrr-no-across"}
 FIELD = ["--surface", "field"]
 # Every lever with its own run, split by the surface it runs on.
 ALL_LEVERS = LEVERS + LEVERS2 + LEVERS3 + LEVERS4

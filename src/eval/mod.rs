@@ -445,9 +445,10 @@ pub const VARIANTS: &[(&str, Variant)] = &[
     }),
     ("nkrr-paper-pairs", |s| Settings { near_k: None, extra_pairs: None, ..nkrr(s) }),
     ("nkrr-select-training", |s| Settings { select_by: crate::settings::SelectBy::Training, ..nkrr(s) }),
-    ("nkrr-prior-mean", |s| Settings { prior_mean: crate::settings::PriorMean::Network, ..nkrr(s) }),
+    // The paper's prior mean: the regression alone is the field.
+    ("nkrr-zero-mean", |s| Settings { prior_mean: crate::settings::PriorMean::Zero, ..nkrr(s) }),
     ("nkrr-position", |s| Settings { position: true, ..nkrr(s) }),
-    ("nkrr-position-prior-mean", |s| Settings { position: true, prior_mean: crate::settings::PriorMean::Network, ..nkrr(s) }),
+    ("nkrr-position-zero-mean", |s| Settings { position: true, prior_mean: crate::settings::PriorMean::Zero, ..nkrr(s) }),
     ("nkrr-no-across", |s| Settings { across: None, ..nkrr(s) }),
     ("nkrr-keep-outliers", |s| Settings { outliers: None, min_support: None, ..nkrr(s) }),
 ];
