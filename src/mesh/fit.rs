@@ -11,10 +11,12 @@
 //! w_i = exp(−(d_i / h)²) with h = `scale` × d_k (the k-th distance, so the neighbourhood
 //! follows the local density), their weighted centroid c and covariance; the plane's normal n is
 //! the covariance's eigenvector of the smallest eigenvalue, and v' = v − ((v − c)·n) n. A vertex
-//! is left where it is when its nearest point is farther than `max_distance` × the cloud's mean
-//! spacing (there is no data there to fit: the field's surface over a hole stays as it is), or
-//! when the plane's normal is more than about 75° from the mesh's own normal there (two sheets of
-//! a thin part, or a corner, in one neighbourhood: the plane would cut across the surface).
+//! is left where it is when its nearest point is farther than `max_distance` × the spacing there
+//! (there is no data there to fit: the field's surface over a hole stays as it is), or when the
+//! plane's normal is more than about 75° from the mesh's own normal there (two sheets of a thin
+//! part, or a corner, in one neighbourhood: the plane would cut across the surface). The spacing
+//! is the cloud's mean, or the nearest point's own where the points are sparser than that
+//! ([`SparseReach`]): a scan's far, sparse end is fitted too.
 //! The moves are then averaged over each vertex's mesh neighbours a few times (`smoothing`), so
 //! the noise of each small plane fit does not reach the surface's normals. The field's own level
 //! set is low-passed first and its planes are averaged instead of its moves ([`Fitted::Field`]):
@@ -30,6 +32,9 @@ pub struct FitReport {
     pub moved: usize,
     /// Vertices left alone: no point within reach, or a plane across the surface.
     pub kept: usize,
+    /// Of the moved vertices, those reached only through their nearest point's own spacing,
+    /// where the points are sparser than the cloud's mean ([`SparseReach`]).
+    pub sparse: usize,
     /// Mean distance a moved vertex travelled onto its plane (after the low pass, where there is
     /// one), in units of the cloud's mean spacing.
     pub mean_shift: f64,
@@ -336,6 +341,7 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     }
     let spacing = mean_spacing(points) as f64;
     let reach2 = (opts.max_distance as f64 * spacing).powi(2);
+    let sparse_reach2 = SparseReach::of(points, spacing, opts.max_distance as f64);
     let index = PointIndex::new(points);
     let k = opts.k.min(points.len());
     report.neighbours = k;
@@ -349,13 +355,23 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     let mut planes: Vec<Option<([f64; 3], [f64; 3])>> = vec![None; mesh.positions.len()];
     let moved = crate::par::fill(&mut planes, |start, chunk| {
         let mut near = Vec::with_capacity(k);
-        let mut moved = 0;
+        let (mut moved, mut sparse) = (0, 0);
         for (i, m) in (start..).zip(chunk.iter_mut()) {
             let (v, n_mesh) = (mesh.positions[i], mesh.normals[i]);
             index.k_nearest(v, k, &mut near);
-            let within = near.first().is_some_and(|&(d2, _)| (d2 as f64) <= reach2);
-            let plane = if within { plane(points, &near, opts.scale as f64) } else { None };
-            if let Some((c, n)) = plane.filter(|&(_, n)| dot(n, n_mesh.map(f64::from)).abs() >= MIN_COS) {
+            let Some(&(d2, nearest)) = near.first() else { continue };
+            let d2 = d2 as f64;
+            // Within the cloud's reach, or only within the sparse nearest point's own (which
+            // asks the plane to agree more closely with the mesh).
+            let (min_cos, sparse_only) = if d2 <= reach2 {
+                (MIN_COS, false)
+            } else if d2 <= sparse_reach2[nearest as usize] {
+                (SparseReach::MIN_COS, true)
+            } else {
+                continue;
+            };
+            let plane = plane(points, &near, opts.scale as f64);
+            if let Some((c, n)) = plane.filter(|&(_, n)| dot(n, n_mesh.map(f64::from)).abs() >= min_cos) {
                 let mut off = dot(sub(v.map(f64::from), c), n);
                 let tangent = point_normals.as_ref().and_then(|normals| tangent_offset(points, normals, &near, opts.scale as f64, (c, n), v.map(f64::from)));
                 if let Some((off_t, var)) = tangent {
@@ -369,11 +385,13 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
                 let (n, off) = if dot(n, n_mesh.map(f64::from)) < 0.0 { (n.map(|x| -x), -off) } else { (n, off) };
                 *m = Some((sub(v.map(f64::from), n.map(|x| off * x)), n));
                 moved += 1;
+                sparse += sparse_only as usize;
             }
         }
-        moved
+        (moved, sparse)
     });
-    report.moved = moved.iter().sum();
+    report.moved = moved.iter().map(|c| c.0).sum();
+    report.sparse = moved.iter().map(|c| c.1).sum();
     report.kept = planes.len() - report.moved;
     if opts.smoothing > 0 {
         edges.get_or_insert_with(|| Neighbours::of(&mesh.indices, n_vertices));
@@ -401,6 +419,36 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     report.mean_shift = if report.moved > 0 && spacing > 0.0 { shift / report.moved as f64 / spacing } else { 0.0 };
     mesh.compute_vertex_normals();
     report
+}
+
+/// How far from a point a vertex may be and still be fitted where the points are sparser than
+/// the cloud's mean: `max_distance` × the point's own spacing (its distance to its
+/// [`SparseReach::RANK`]-th neighbour, scaled so that their mean is the cloud's mean spacing),
+/// when that is more than the cloud's reach.
+///
+/// Why: on a scan whose density falls along it (the density-falloff clouds: 55 times from one end
+/// to the other), the mean spacing is the dense end's, and the sparse end's vertices were left
+/// as the field or the Poisson solve put them (2,558 of cow's 20,490), though points are there.
+/// A vertex reached only this way needs its plane within [`SparseReach::MIN_COS`] of the mesh's
+/// normal: a sparse neighbourhood more easily spans both sides of a thin part (teapot's spout;
+/// with the usual 0.25 it lost 0.019 CD1 x100 there). Chosen on the tuning shapes' falloff clouds
+/// (cow, fandisk, suzanne; mean CD1 x100 0.5099 before, 0.4965 with 0.25, 0.4939 with 0.8,
+/// 0.5035 with 0.95); docs/poisson.md has the rest.
+struct SparseReach;
+
+impl SparseReach {
+    const RANK: usize = 4;
+    const MIN_COS: f64 = 0.8;
+
+    /// Each point's own reach, squared (the loop takes the cloud's where that is larger).
+    fn of(points: &[[f32; 3]], spacing: f64, max_distance: f64) -> Vec<f64> {
+        let d = crate::sample::kth_neighbour_distance(points, Self::RANK);
+        let mean = d.iter().map(|&x| x as f64).sum::<f64>() / d.len().max(1) as f64;
+        if !(mean > 0.0) {
+            return vec![0.0; points.len()];
+        }
+        d.iter().map(|&x| (max_distance * x as f64 * spacing / mean).powi(2)).collect()
+    }
 }
 
 /// Unnormalised normals (twice the area) of the triangles of `indices`.
@@ -811,6 +859,43 @@ mod tests {
         assert_eq!(tangent_weight(TANGENT_NOISE.0), 0.5);
         assert_eq!(tangent_weight(0.5 * (TANGENT_NOISE.0 + TANGENT_NOISE.1)), 0.25);
         assert_eq!(tangent_weight(TANGENT_NOISE.1), 0.0);
+    }
+
+    /// Where the points are sparser than the cloud's mean (a scan's far end), vertices are fitted
+    /// within the sparse points' own reach ([`SparseReach`]), not left where they were; a vertex
+    /// beyond every point's reach still stays.
+    #[test]
+    fn the_sparse_end_is_fitted_too() {
+        let mut rng = crate::rng::SplitMix64(11);
+        let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.unit();
+        // z = 0: 4000 points on x in [-1, 0], 100 on x in [0, 1] (40 times sparser).
+        let mut points: Vec<[f32; 3]> = Vec::new();
+        for (n, lo, hi) in [(4000, -1.0, 0.0), (100, 0.0, 1.0)] {
+            for _ in 0..n {
+                points.push([uniform(lo, hi) as f32, uniform(-1.0, 1.0) as f32, 0.0]);
+            }
+        }
+        // Vertices 0.01 above the sparse half, and one far off to the side.
+        let mut positions: Vec<[f32; 3]> = (0..64).map(|i| [0.3 + 0.6 * (i % 8) as f32 / 7.0, -0.8 + 1.6 * (i / 8) as f32 / 7.0, 0.01]).collect();
+        positions.push([4.0, 0.0, 0.01]);
+        let mut mesh = Mesh { normals: vec![[0.0, 0.0, 1.0]; positions.len()], positions, colors: None, indices: Vec::new() };
+        let spacing = mean_spacing(&points) as f64;
+        let opts = FitOptions { smoothing: 0, local: Local::Plane, ..FitOptions::for_points(points.len()) };
+        let index = PointIndex::new(&points);
+        let mut near = Vec::new();
+        let beyond_the_mean = mesh.positions[..64]
+            .iter()
+            .filter(|&&v| {
+                index.k_nearest(v, 1, &mut near);
+                (near[0].0 as f64).sqrt() > opts.max_distance as f64 * spacing
+            })
+            .count();
+        assert!(beyond_the_mean > 32, "the set-up: most of the sparse half's vertices are beyond the mean's reach ({beyond_the_mean})");
+        let report = fit_to_points(&mut mesh, &points, &opts);
+        let landed = mesh.positions[..64].iter().filter(|v| v[2].abs() < 1e-4).count();
+        assert_eq!(landed, 64, "{report:?}");
+        assert!(report.sparse >= beyond_the_mean, "{report:?}");
+        assert_eq!(mesh.positions[64], [4.0, 0.0, 0.01], "no point within reach: left alone");
     }
 
     /// Vertices (no triangles) 0.01 outside the radius-0.4 sphere along the directions `dirs`
