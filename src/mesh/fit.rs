@@ -433,7 +433,7 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
 /// normal: a sparse neighbourhood more easily spans both sides of a thin part (teapot's spout;
 /// with the usual 0.25 it lost 0.019 CD1 x100 there). Chosen on the tuning shapes' falloff clouds
 /// (cow, fandisk, suzanne; mean CD1 x100 0.5099 before, 0.4965 with 0.25, 0.4939 with 0.8,
-/// 0.5035 with 0.95); docs/poisson.md has the rest.
+/// 0.5035 with 0.95); docs/fit.md, "The sparse end", has the results.
 struct SparseReach;
 
 impl SparseReach {
