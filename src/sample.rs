@@ -179,7 +179,12 @@ impl<'a> PointIndex<'a> {
 /// a non-zero distance (exact duplicates would otherwise pull the spacing towards zero); 0 when
 /// there is none.
 pub fn mean_spacing(points: &[[f32; 3]]) -> f32 {
-    let d = kth_neighbour_distance(points, 1);
+    mean_spacing_of(&kth_neighbour_distance(points, 1))
+}
+
+/// [`mean_spacing`] from the points' nearest-neighbour distances `d`, for a caller that found
+/// them in a search for other ranks too ([`neighbour_distances`]).
+pub fn mean_spacing_of(d: &[f32]) -> f32 {
     let (sum, n) = d.iter().filter(|&&x| x > 0.0).fold((0.0f64, 0usize), |(s, n), &x| (s + x as f64, n + 1));
     if n == 0 {
         0.0

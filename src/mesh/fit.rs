@@ -23,7 +23,7 @@
 //! averaged moves would carry the field's ripples through.
 
 use super::types::Mesh;
-use crate::sample::{mean_spacing, PointIndex};
+use crate::sample::{mean_spacing_of, neighbour_distances, PointIndex};
 
 /// What the fit did.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -339,9 +339,13 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     if mesh.normals.len() != mesh.positions.len() {
         mesh.compute_vertex_normals();
     }
-    let spacing = mean_spacing(points) as f64;
+    // The nearest neighbour's distance (the cloud's mean spacing) and SparseReach's rank from
+    // one search.
+    let mut ranks = neighbour_distances(points, &[1, SparseReach::RANK]);
+    let (by_rank, first) = (ranks.pop().unwrap_or_default(), ranks.pop().unwrap_or_default());
+    let spacing = mean_spacing_of(&first) as f64;
     let reach2 = (opts.max_distance as f64 * spacing).powi(2);
-    let sparse_reach2 = SparseReach::of(points, spacing, opts.max_distance as f64);
+    let sparse_reach2 = SparseReach::of(&by_rank, spacing, opts.max_distance as f64);
     let index = PointIndex::new(points);
     let k = opts.k.min(points.len());
     report.neighbours = k;
@@ -440,12 +444,12 @@ impl SparseReach {
     const RANK: usize = 4;
     const MIN_COS: f64 = 0.8;
 
-    /// Each point's own reach, squared (the loop takes the cloud's where that is larger).
-    fn of(points: &[[f32; 3]], spacing: f64, max_distance: f64) -> Vec<f64> {
-        let d = crate::sample::kth_neighbour_distance(points, Self::RANK);
+    /// Each point's own reach, squared, from its distance to its [`SparseReach::RANK`]-th
+    /// neighbour `d` (the loop takes the cloud's where that is larger).
+    fn of(d: &[f32], spacing: f64, max_distance: f64) -> Vec<f64> {
         let mean = d.iter().map(|&x| x as f64).sum::<f64>() / d.len().max(1) as f64;
         if !(mean > 0.0) {
-            return vec![0.0; points.len()];
+            return vec![0.0; d.len()];
         }
         d.iter().map(|&x| (max_distance * x as f64 * spacing / mean).powi(2)).collect()
     }
@@ -746,6 +750,7 @@ fn smallest_eigenvector(a: [[f64; 3]; 3]) -> Option<[f64; 3]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sample::mean_spacing;
 
     /// A 5 × 5 vertex grid in the plane z = 0, two triangles a cell, all facing +z.
     fn grid() -> Mesh {
