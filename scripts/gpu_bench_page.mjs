@@ -10,6 +10,11 @@
 //
 //   node scripts/gpu_bench_page.mjs --dist DIST --cloud CLOUD.ply --method nkrr|network
 //        [--gpu real|swiftshader] [--chromium /usr/bin/chromium] [--timeout-s 600] [--resolution N]
+//        [--threads N]
+//
+// The app is served cross-origin isolated (COOP/COEP), as trunk serves it (Trunk.toml), so the
+// worker runs the threaded build on every core unless --threads says otherwise (1: the plain
+// build); `threads` in the output is what it ran on.
 //
 // Reuses tests/browser/harness.mjs (the static server, runToEnd); playwright-core comes from the
 // repository's node_modules.
@@ -42,7 +47,7 @@ async function main() {
     options: {
       dist: { type: 'string' }, cloud: { type: 'string' }, method: { type: 'string', default: 'nkrr' },
       gpu: { type: 'string', default: 'real' }, chromium: { type: 'string', default: process.env.CHROMIUM || '/usr/bin/chromium' },
-      'timeout-s': { type: 'string', default: '600' }, resolution: { type: 'string' },
+      'timeout-s': { type: 'string', default: '600' }, resolution: { type: 'string' }, threads: { type: 'string' },
     },
   });
   const out = { ok: false, errors: [] };
@@ -53,14 +58,14 @@ async function main() {
   const deadline = Date.now() + 1000 * Number(a['timeout-s']);
   const left = () => Math.max(1000, deadline - Date.now());
   const dist = path.resolve(a.dist);
-  const srv = await serve(dist);
+  const srv = await serve(dist, {}, { 'Cross-Origin-Opener-Policy': 'same-origin', 'Cross-Origin-Embedder-Policy': 'require-corp' });
   const b = await chromium.launch({ executablePath: a.chromium, headless: true, args: chromiumFlags(a.gpu) });
   try {
     const page = await b.newPage({ viewport: { width: 1200, height: 760 } });
     page.on('pageerror', (e) => out.errors.push(String(e)));
     page.on('console', (m) => { if (m.type() === 'error') out.errors.push(m.text()); });
     const t0 = Date.now();
-    await page.goto(srv.url);
+    await page.goto(a.threads ? `${srv.url}/?threads=${Number(a.threads)}` : srv.url);
     await page.waitForFunction(() => document.body.dataset.state, null, { timeout: left() });
     const state = await page.evaluate(() => document.body.dataset.state);
     out.adapter_page = (await page.textContent('#adapter')).replace(/^GPU: /, '');
@@ -79,6 +84,7 @@ async function main() {
     // The worker's engine too (the page prepares it on load), so that wall_s is the run alone.
     out.adapter_worker_ready = await page.evaluate(() => window.nkrrReconstructor.prepare());
     out.ready_s = (Date.now() - t0) / 1000;
+    out.threads = await page.evaluate(() => window.nkrrReconstructor.threads);
     // The run's full stats: the page's reconstructor, wrapped, keeps the last result's.
     await page.evaluate(() => {
       const r = window.nkrrReconstructor;

@@ -1,5 +1,7 @@
 //! Loops over independent items (a neighbour search per point or per vertex), split over the
-//! cores natively and run on the calling thread on `wasm32`.
+//! cores: natively on scoped threads; on `wasm32` on the page's pool of Web Workers where the
+//! threaded build runs (feature `wasm-threads`, a cross-origin isolated page), else on the
+//! calling thread.
 //!
 //! Why: on a real GPU the network's part of a scene is a few percent of its time; the rest is
 //! such loops on one core (docs/scenes.md, "On a GPU"). Each item is computed alone and the
@@ -23,10 +25,25 @@ pub(crate) fn threads() -> usize {
     })
 }
 
-/// Threads a loop may use: always 1 on `wasm32`.
+/// Threads a loop may use on `wasm32`: the page's pool once it is up ([`set_pool_threads`]), 1
+/// before and in the plain build. Until the pool is up nothing may call into rayon: its global
+/// pool would try to start threads of its own, which the browser cannot.
 #[cfg(target_arch = "wasm32")]
 pub(crate) fn threads() -> usize {
+    #[cfg(feature = "wasm-threads")]
+    return POOL_THREADS.load(std::sync::atomic::Ordering::Relaxed);
+    #[cfg(not(feature = "wasm-threads"))]
     1
+}
+
+#[cfg(all(target_arch = "wasm32", feature = "wasm-threads"))]
+static POOL_THREADS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(1);
+
+/// Called once wasm-bindgen-rayon's pool of `n` workers is up (`web/worker.js` awaits
+/// `initThreadPool(n)` first): from then on the loops and `krr::linalg` split over them.
+#[cfg(all(target_arch = "wasm32", feature = "wasm-threads"))]
+pub(crate) fn set_pool_threads(n: usize) {
+    POOL_THREADS.store(n.max(1), std::sync::atomic::Ordering::Relaxed);
 }
 
 /// Fewest items worth a thread of its own: an item is a neighbour search or less (a few µs),
@@ -63,7 +80,8 @@ pub fn fill<R: Send, S: Send>(out: &mut [R], f: impl Fn(usize, &mut [R]) -> S + 
 }
 
 /// `f` of each part on a scoped thread of its own, the results in the parts' order (natively;
-/// on `wasm32`, where [`threads`] is 1 and nothing gets here, one after the other).
+/// on `wasm32`, on the page's pool or, in the plain build, where [`threads`] is 1 and nothing
+/// gets here, one after the other).
 #[cfg(not(target_arch = "wasm32"))]
 fn run<P: Send, S: Send>(parts: Vec<P>, f: &(impl Fn(P) -> S + Sync)) -> Vec<S> {
     std::thread::scope(|s| {
@@ -72,7 +90,14 @@ fn run<P: Send, S: Send>(parts: Vec<P>, f: &(impl Fn(P) -> S + Sync)) -> Vec<S> 
     })
 }
 
-#[cfg(target_arch = "wasm32")]
+/// On the page's pool: an indexed parallel iterator keeps the parts' order.
+#[cfg(all(target_arch = "wasm32", feature = "wasm-threads"))]
+fn run<P: Send, S: Send>(parts: Vec<P>, f: &(impl Fn(P) -> S + Sync)) -> Vec<S> {
+    use rayon::prelude::*;
+    parts.into_par_iter().map(f).collect()
+}
+
+#[cfg(all(target_arch = "wasm32", not(feature = "wasm-threads")))]
 fn run<P: Send, S: Send>(parts: Vec<P>, f: &(impl Fn(P) -> S + Sync)) -> Vec<S> {
     parts.into_iter().map(f).collect()
 }

@@ -168,7 +168,10 @@ function updatePreflight() {
 
 // ---- A run -----------------------------------------------------------------------------
 
-const reconstructor = new Reconstructor({ graceMs: CANCEL_GRACE_MS });
+// `?threads=N` sets the worker's CPU threads (1: the plain single-threaded build); the default is
+// every core where the page is cross-origin isolated. Not a setting: results do not depend on it.
+const THREADS_ASKED = Number(new URLSearchParams(location.search).get('threads')) || undefined;
+const reconstructor = new Reconstructor({ graceMs: CANCEL_GRACE_MS, threads: THREADS_ASKED });
 
 // Shares of the overall bar per stage, by method. Meshing has no known end: its share fills as
 // field evaluations approach the typical count the event carries (MeshingSize::expected).
@@ -540,7 +543,12 @@ async function boot() {
   updateRunButton();
   // The worker loads the module and prepares its engine while the user picks a file.
   reconstructor.prepare().then(
-    () => mark('worker', 'ready'),
+    () => {
+      mark('worker', 'ready');
+      mark('threads', reconstructor.threads);
+      const n = reconstructor.threads;
+      $('adapter').textContent = `GPU: ${viewer.adapter} · CPU: ${n} thread${n === 1 ? '' : 's'}`;
+    },
     (e) => { mark('worker', 'error'); console.warn(`the reconstruction worker is not ready: ${e.message}`); },
   );
   openFromQuery(query);

@@ -22,6 +22,12 @@
 // reaches them).
 
 const WORKER_URL = new URL('./worker.js', import.meta.url);
+
+/** Every core where the worker can share memory with its pool (a cross-origin isolated page),
+ *  at most 16 (each thread holds a stack and a worker); else 1. */
+function defaultThreads() {
+  return globalThis.crossOriginIsolated ? Math.min(navigator.hardwareConcurrency || 1, 16) : 1;
+}
 // A worker whose wasm memory grew past this in a run is ended once it has answered: wasm memory
 // never shrinks, and a big scan's (the whole scene's mesh, its GLB, the last fit's tree) would
 // stay held by the tab until it closes. The next run starts a new worker and GPU engine (seconds);
@@ -30,12 +36,18 @@ const RECYCLE_HEAP_BYTES = 256 * 2 ** 20;
 
 export class Reconstructor {
   /**
-   * @param {{ graceMs?: number, workerUrl?: string | URL }} [opts]
+   * @param {{ graceMs?: number, workerUrl?: string | URL, threads?: number }} [opts]
    *   graceMs: how long an aborted run may take to stop before its worker is replaced.
+   *   threads: CPU threads for the reconstruction's loops and linear algebra (default: every
+   *   core, where the page is cross-origin isolated; 1 otherwise, and 1 runs the plain build).
+   *   The results are the same to the bit for any count.
    */
-  constructor({ graceMs = 5000, workerUrl = WORKER_URL } = {}) {
+  constructor({ graceMs = 5000, workerUrl = WORKER_URL, threads = defaultThreads() } = {}) {
     this.graceMs = graceMs;
     this.workerUrl = workerUrl;
+    this.threadsAsked = Math.max(1, Math.floor(threads) || 1);
+    /** The threads the worker runs on, once it is ready (fewer than asked where it cannot share memory). */
+    this.threads = null;
     this.worker = null;
     this.workersStarted = 0;
     this.job = null; // { id, resolve, reject, onProgress }
@@ -99,6 +111,24 @@ export class Reconstructor {
     this._end();
   }
 
+  /**
+   * Benchmark hook (tests/browser/tuning-step.test.mjs): milliseconds of one tuning step's CPU
+   * share with `m` inducing points, median of `reps`, on the worker's threads. Resolves to
+   * `{ ms, threads }`.
+   */
+  async tuningStepMs(m, reps) {
+    await this.prepare();
+    const w = this.worker;
+    return new Promise((resolve, reject) => {
+      const on = ({ data }) => {
+        if (data.type === 'tuning-step') { w.removeEventListener('message', on); resolve({ ms: data.ms, threads: data.threads }); }
+        else if (data.type === 'error' && data.id === undefined) { w.removeEventListener('message', on); reject(workerError(data)); }
+      };
+      w.addEventListener('message', on);
+      w.postMessage({ type: 'tuning-step', m, reps });
+    });
+  }
+
   /** Test hook: the worker's GPU device is destroyed as if the driver had reset. */
   simulateDeviceLoss() {
     this.worker?.postMessage({ type: 'simulate-device-loss' });
@@ -110,7 +140,10 @@ export class Reconstructor {
     this.workersStarted++;
     this._ready = new Promise((resolve, reject) => {
       w.addEventListener('message', ({ data }) => {
-        if (data.type === 'ready') resolve(data.adapter);
+        if (data.type === 'ready') {
+          this.threads = data.threads;
+          resolve(data.adapter);
+        }
         else if (data.type === 'error' && data.id === undefined) reject(workerError(data));
       });
       w.addEventListener('error', (e) => reject(new Error(e.message || 'the reconstruction worker failed to start')));
@@ -125,7 +158,7 @@ export class Reconstructor {
         w.terminate();
       }
     });
-    w.postMessage({ type: 'prepare' });
+    w.postMessage({ type: 'prepare', threads: this.threadsAsked });
     this.onstatechange?.();
   }
 

@@ -14,7 +14,11 @@ const SHELL = [
   './', './index.html', './style.css', './nkrr.js', './nkrr_bg.wasm', './manifest.webmanifest',
   './web/app.js', './web/reconstructor.js', './web/worker.js', './web/settings.js', './web/result.js',
   './web/util.js', './web/test-hooks.js', './web/icon.svg', './meshopt_decoder.mjs', './meshopt_decoder.cjs',
+  // The threaded build (cross-origin isolated pages); its pool's worker snippet, whose folder
+  // name carries a hash, is kept when first loaded (THREADS below).
+  './threads/nkrr.js', './threads/nkrr_bg.wasm',
 ];
+const THREADS = new URL('./threads/', self.location).pathname;
 
 self.addEventListener('install', (event) => {
   event.waitUntil(caches.open(CACHE).then((c) => c.addAll(SHELL.map((p) => new URL(p, self.location).href))));
@@ -30,7 +34,8 @@ self.addEventListener('fetch', (event) => {
   const url = new URL(req.url);
   // Only the app's own files: a cloud fetched from this site (?cloud=) can be hundreds of MB and
   // is the user's, not the app's, so it is neither kept nor answered from here.
-  if (req.method !== 'GET' || url.origin !== self.location.origin || !KEPT.has(url.pathname)) return;
+  const kept = KEPT.has(url.pathname) || url.pathname.startsWith(THREADS);
+  if (req.method !== 'GET' || url.origin !== self.location.origin || !kept) return;
   event.respondWith((async () => {
     const cache = await caches.open(CACHE);
     // One copy per file: a share link's query string names the same page.

@@ -11,6 +11,7 @@
 //   stage     the progress stage of the running job ('setup', 'features', … 'done')
 //   software  'true' when WebGPU runs on a software adapter (then the method defaults to network)
 //   worker    'ready' | 'error': whether the reconstruction worker has its engine
+//   threads   the CPU threads the worker runs on, once ready (1: the plain build)
 //   workers   how many workers have been started (a cancelled CPU-bound run replaces one)
 //   stopping  the id of a cancelled run its worker has not confirmed yet
 //   trimmed   triangles the result panel's live trim slider removes

@@ -14,8 +14,8 @@
 //!
 //! **Threads.** Natively the kernels split their *output* over scoped threads
 //! ([`max_threads`]: `available_parallelism()`, or `NKRR_THREADS`), never a sum, so results are
-//! bitwise the same for any number of threads. On `wasm32` everything runs on the calling
-//! thread. **SIMD.** On x86-64 CPUs with AVX2 and FMA (detected at run time) the register tile
+//! bitwise the same for any number of threads. On `wasm32` they split over the page's pool of
+//! Web Workers in the threaded build (`crate::par`), else run on the calling thread. **SIMD.** On x86-64 CPUs with AVX2 and FMA (detected at run time) the register tile
 //! uses 4-wide fused multiply-adds; elsewhere the compiler vectorises plain Rust (separate
 //! multiply and add) as the target allows. The two differ in the last bits, never in accuracy.
 
@@ -25,7 +25,7 @@ use super::error::KrrError;
 // threads
 
 /// Threads the kernels of this module may use: [`crate::par::threads`] (`NKRR_THREADS` if set
-/// to a positive integer, else every core; always 1 on `wasm32`).
+/// to a positive integer, else every core; on `wasm32` the page's pool, or 1).
 pub fn max_threads() -> usize {
     crate::par::threads()
 }
@@ -111,8 +111,21 @@ where
     std::thread::scope(|s| spread(s, parts, f));
 }
 
-/// Runs `f` on each part, in order, on this thread (`wasm32` has no threads).
-#[cfg(target_arch = "wasm32")]
+/// Runs `f` on each part on the page's pool of Web Workers (the threaded wasm build).
+#[cfg(all(target_arch = "wasm32", feature = "wasm-threads"))]
+fn run_parts<F>(parts: Vec<Part<'_>>, f: &F)
+where
+    F: Fn(usize, usize, &mut [f64]) + Sync,
+{
+    rayon::scope(|s| {
+        for (u0, u1, c) in parts {
+            s.spawn(move |_| f(u0, u1, c));
+        }
+    });
+}
+
+/// Runs `f` on each part, in order, on this thread (the plain wasm build has no threads).
+#[cfg(all(target_arch = "wasm32", not(feature = "wasm-threads")))]
 fn run_parts<F>(parts: Vec<Part<'_>>, f: &F)
 where
     F: Fn(usize, usize, &mut [f64]) + Sync,
@@ -123,15 +136,24 @@ where
 }
 
 /// `(fa(ta), fb(tb))` for two independent jobs sharing `threads` (`ta ≈ share_a · threads`,
-/// `tb` the rest): natively `fa` on a scoped thread of its own while `fb` runs here, when there
-/// are at least two threads; otherwise one after the other, each with all of them.
+/// `tb` the rest): natively `fa` on a scoped thread of its own while `fb` runs here, on `wasm32`
+/// both on the page's pool, when there are at least two threads; otherwise one after the other,
+/// each with all of them.
 pub(crate) fn join<A, B, FA, FB>(threads: usize, share_a: f64, fa: FA, fb: FB) -> (A, B)
 where
     A: Send,
+    B: Send,
     FA: FnOnce(usize) -> A + Send,
-    FB: FnOnce(usize) -> B,
+    FB: FnOnce(usize) -> B + Send,
 {
     let ta = ((threads as f64 * share_a).round() as usize).clamp(1, threads.max(2) - 1);
+    #[cfg(all(target_arch = "wasm32", feature = "wasm-threads"))]
+    {
+        if threads >= 2 {
+            let tb = threads - ta;
+            return rayon::join(move || fa(ta), move || fb(tb));
+        }
+    }
     #[cfg(not(target_arch = "wasm32"))]
     {
         if threads >= 2 {
