@@ -182,7 +182,7 @@ impl Engine {
         let mut peaks = crate::gpu::StagePeaks::start(&self.gpu);
         let t = now();
         let planes = self.net.encode(&points).await?;
-        self.net.wait();
+        self.gpu.work_done().await;
         timings.push(("features", now() - t));
         peaks.end("features");
 

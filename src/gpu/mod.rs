@@ -425,6 +425,18 @@ impl Gpu {
         self.poll_wait();
     }
 
+    /// Resolves once the work submitted so far is done: natively by driving the device, in the
+    /// browser through the queue's `onSubmittedWorkDone` (nothing may block there). A stage
+    /// timed up to here is timed whole: the page's features stage used to end at its last
+    /// submission, and the GPU work it had queued (seconds on a software adapter) was counted
+    /// in the next stage that read something back.
+    pub async fn work_done(&self) {
+        let (signal, wait) = oneshot();
+        self.queue.on_submitted_work_done(move || signal.send(()));
+        self.poll_wait();
+        let _ = wait.await;
+    }
+
     /// Natively, drive the device until submitted work is done; on the web the browser does it.
     pub fn poll_wait(&self) {
         #[cfg(not(target_arch = "wasm32"))]
