@@ -1,4 +1,6 @@
 //! Helpers shared by integration tests (each test binary includes this with `mod common;`).
+// Each binary uses its own part of them: what one leaves unused is not dead code.
+#![allow(dead_code)]
 
 use std::path::PathBuf;
 use std::process::Command;
