@@ -15,9 +15,10 @@
 //! **Threads.** Natively the kernels split their *output* over scoped threads
 //! ([`max_threads`]: `available_parallelism()`, or `NKRR_THREADS`), never a sum, so results are
 //! bitwise the same for any number of threads. On `wasm32` they split over the page's pool of
-//! Web Workers in the threaded build (`crate::par`), else run on the calling thread. **SIMD.** On x86-64 CPUs with AVX2 and FMA (detected at run time) the register tile
-//! uses 4-wide fused multiply-adds; elsewhere the compiler vectorises plain Rust (separate
-//! multiply and add) as the target allows. The two differ in the last bits, never in accuracy.
+//! Web Workers in the threaded build (`crate::par`), else run on the calling thread.
+//! **SIMD.** On x86-64 CPUs with AVX2 and FMA (detected at run time) the register tile uses
+//! 4-wide fused multiply-adds; elsewhere the compiler vectorises plain Rust (separate multiply
+//! and add) as the target allows. The two differ in the last bits, never in accuracy.
 
 use super::error::KrrError;
 
