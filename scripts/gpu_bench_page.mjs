@@ -22,7 +22,7 @@ import fs from 'node:fs';
 import path from 'node:path';
 import { parseArgs } from 'node:util';
 import { chromium } from 'playwright-core';
-import { serve, runToEnd } from '../tests/browser/harness.mjs';
+import { serve, runToEnd, ISOLATED } from '../tests/browser/harness.mjs';
 
 /** Chromium's flags for WebGPU in headless mode. `real`: the machine's GPU through Vulkan
  *  (Dawn's Vulkan backend; ANGLE on Vulkan so that the page's canvas has a shared-image
@@ -58,7 +58,7 @@ async function main() {
   const deadline = Date.now() + 1000 * Number(a['timeout-s']);
   const left = () => Math.max(1000, deadline - Date.now());
   const dist = path.resolve(a.dist);
-  const srv = await serve(dist, {}, { 'Cross-Origin-Opener-Policy': 'same-origin', 'Cross-Origin-Embedder-Policy': 'require-corp' });
+  const srv = await serve(dist, {}, ISOLATED);
   const b = await chromium.launch({ executablePath: a.chromium, headless: true, args: chromiumFlags(a.gpu) });
   try {
     const page = await b.newPage({ viewport: { width: 1200, height: 760 } });

@@ -869,11 +869,6 @@ impl GpuNet {
     pub fn read_planes_blocking(&self, planes: &GpuPlanes) -> Result<Planes, GpuError> {
         pollster::block_on(self.read_planes(planes))
     }
-
-    /// Waits until submitted work is done (natively; on the web the browser drives it).
-    pub fn wait(&self) {
-        self.gpu.poll_wait();
-    }
 }
 
 /// A decode of one set of planes, its buffers made once ([`GpuNet::decoder`]).

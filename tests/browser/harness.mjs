@@ -19,6 +19,10 @@ const TYPES = {
   '.webmanifest': 'application/manifest+json', '.svg': 'image/svg+xml',
 };
 
+/** The headers that make a page cross-origin isolated, as trunk serves the app (Trunk.toml): the
+ *  shared cancel flag and the worker's threaded build need them. For `serve`'s `headers`. */
+export const ISOLATED = { 'Cross-Origin-Opener-Policy': 'same-origin', 'Cross-Origin-Embedder-Policy': 'require-corp' };
+
 /** Serves `dir` on 127.0.0.1 (a free port); extra routes map URL paths to files; `headers` are
  *  added to every response (e.g. COOP/COEP for cross-origin isolation). */
 export async function serve(dir, extra = {}, headers = {}) {

@@ -9,7 +9,7 @@ import { execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { serve, browser, openPage, requireDist, readGlb, runToEnd, watertight, DIST, EVAL, ARTIFACTS, ROOT } from './harness.mjs';
+import { serve, browser, openPage, requireDist, readGlb, runToEnd, watertight, DIST, EVAL, ARTIFACTS, ROOT, ISOLATED } from './harness.mjs';
 
 const SCAN = path.join(EVAL, 'spot-3k.ply');
 const RUN_TIMEOUT = 600_000;
@@ -266,7 +266,7 @@ test('cancel during CPU-bound nkrr tuning replaces the deaf worker; the next run
 });
 
 test('on a cross-origin isolated page, cancel reaches even CPU-bound tuning; the worker is kept', { timeout: 2 * RUN_TIMEOUT }, async () => {
-  const isolated = await serve(DIST, {}, { 'cross-origin-opener-policy': 'same-origin', 'cross-origin-embedder-policy': 'require-corp' });
+  const isolated = await serve(DIST, {}, ISOLATED);
   const b = await browser();
   try {
     const { page, errors } = await newPage(b, isolated.url);

@@ -7,7 +7,7 @@ import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
-import { serve, browser, requireDist, runToEnd, DIST, EVAL, ARTIFACTS } from './harness.mjs';
+import { serve, browser, openPage, requireDist, runToEnd, DIST, EVAL, ARTIFACTS, ISOLATED } from './harness.mjs';
 
 // nkrr on a 500-point cloud tunes (the linear algebra of every step) and runs the last fit and
 // the stray-point filter (the per-point loops); a 3k cloud takes the Poisson surface instead.
@@ -15,7 +15,6 @@ const CLOUDS = [
   { file: path.join(EVAL, 'suzanne-500.ply'), method: 'nkrr' },
   { file: path.join(EVAL, 'spot-3k.ply'), method: 'nkrr' },
 ];
-const ISOLATED = { 'Cross-Origin-Opener-Policy': 'same-origin', 'Cross-Origin-Embedder-Policy': 'require-corp' };
 
 let srv;
 before(async () => {
@@ -26,11 +25,7 @@ before(async () => {
 after(() => srv?.server.close());
 
 async function run(b, query, { file, method }) {
-  const page = await b.newPage({ viewport: { width: 1000, height: 700 }, acceptDownloads: true });
-  const errors = [];
-  page.on('pageerror', (e) => errors.push(String(e)));
-  page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
-  await page.goto(`${srv.url}/${query}`);
+  const { page, errors } = await openPage(b, `${srv.url}/${query}`);
   await page.waitForFunction(() => document.body.dataset.state === 'ready' && document.body.dataset.worker, null, { timeout: 120_000 });
   assert.equal(await page.evaluate(() => document.body.dataset.worker), 'ready', await page.textContent('#message'));
   const info = await page.evaluate(() => ({ isolated: crossOriginIsolated, cores: navigator.hardwareConcurrency, threads: Number(document.body.dataset.threads), footer: document.getElementById('adapter').textContent }));

@@ -10,12 +10,12 @@ import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
-import { serve, browser, openPage, requireDist, DIST, ARTIFACTS } from './harness.mjs';
+import { serve, browser, openPage, requireDist, DIST, ARTIFACTS, ISOLATED } from './harness.mjs';
 
 let srv;
 before(async () => {
   requireDist();
-  srv = await serve(DIST, {}, { 'Cross-Origin-Opener-Policy': 'same-origin', 'Cross-Origin-Embedder-Policy': 'require-corp' });
+  srv = await serve(DIST, {}, ISOLATED);
 });
 after(() => srv?.server.close());
 
