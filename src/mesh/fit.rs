@@ -16,7 +16,9 @@
 //! plane's normal is more than about 75° from the mesh's own normal there (two sheets of a thin
 //! part, or a corner, in one neighbourhood: the plane would cut across the surface). The spacing
 //! is the cloud's mean, or the nearest point's own where the points are sparser than that
-//! ([`SparseReach`]): a scan's far, sparse end is fitted too.
+//! ([`SparseReach`]): a scan's far, sparse end is fitted too. Where the points are much sparser
+//! or denser than the cloud's mean, k follows the local density as it follows the point count
+//! ([`LocalDensity`]).
 //! The moves are then averaged over each vertex's mesh neighbours a few times (`smoothing`), so
 //! the noise of each small plane fit does not reach the surface's normals. The field's own level
 //! set is low-passed first and its planes are averaged instead of its moves ([`Fitted::Field`]):
@@ -42,8 +44,12 @@ pub struct FitReport {
     /// repair (see [`fit_to_points`]).
     pub flipped: usize,
     pub flipped_after_repair: usize,
-    /// Neighbours each vertex's plane was fitted to.
+    /// Neighbours each vertex's plane was fitted to (where the density is about the cloud's).
     pub neighbours: usize,
+    /// Vertices whose plane was fitted to fewer neighbours, where the points are sparser than
+    /// the cloud's mean, and to more, where denser ([`LocalDensity`]).
+    pub fewer: usize,
+    pub more: usize,
     /// When the cloud was noisier than the clean eval clouds: its noise ([`noise_level`]) and
     /// the neighbours [`FitOptions::for_points`] would have used for its point count.
     pub widened: Option<(f64, usize)>,
@@ -100,6 +106,9 @@ pub struct FitOptions {
     pub low_pass: usize,
     /// What each vertex is laid on.
     pub local: Local,
+    /// Whether k follows the density around each vertex ([`LocalDensity`]) rather than the
+    /// cloud's mean alone.
+    pub follow_density: bool,
 }
 
 /// What the mesh to be fitted is: it decides what the fit does (measured per kind in
@@ -174,21 +183,22 @@ impl FitOptions {
     /// fandisk, suzanne) at 500, 3k and 10k points and reported on the other three (docs/fit.md):
     /// k grows as √n (8 at 500, 11 at 3k, 20 at 10k), the Gaussian widens a little with it, and
     /// the moves are smoothed more the sparser the cloud (10 rounds at 500, 4 at 3k, none from
-    /// 10k on, where 20-point planes are already smooth and smoothing only blurs).
+    /// 10k on, where 20-point planes are already smooth and smoothing only blurs). An object's
+    /// mesh also lets k follow the local density ([`FitOptions::for_mesh`], [`LocalDensity`]).
     pub fn for_points(n: usize) -> FitOptions {
         let n = n.max(1) as f64;
-        let k = (0.2 * n.sqrt()).round().clamp(8.0, 32.0) as usize;
+        let k = neighbours_for(n);
         let t = ((n.log10() - 500f64.log10()) / (10_000f64.log10() - 500f64.log10())).clamp(0.0, 1.0);
         let smoothing = (10.0 - 7.7 * (n.log10() - 500f64.log10())).round().clamp(0.0, 12.0) as usize;
-        FitOptions { k, scale: (0.45 + 0.1 * t) as f32, max_distance: 3.0, smoothing, average: Average::Moves, low_pass: 0, local: Local::Plane }
+        FitOptions { k, scale: (0.45 + 0.1 * t) as f32, max_distance: 3.0, smoothing, average: Average::Moves, low_pass: 0, local: Local::Plane, follow_density: false }
     }
 
     /// [`FitOptions::for_points`] for a mesh of kind `fitted` (see [`Fitted`]).
     pub fn for_mesh(n: usize, fitted: Fitted) -> FitOptions {
         let o = FitOptions::for_points(n);
         match fitted {
-            Fitted::Poisson => FitOptions { local: Local::Tangents, ..o },
-            Fitted::Field => FitOptions { local: Local::Tangents, average: Average::Planes, smoothing: 2 * o.smoothing, low_pass: FIELD_LOW_PASS, ..o },
+            Fitted::Poisson => FitOptions { local: Local::Tangents, follow_density: true, ..o },
+            Fitted::Field => FitOptions { local: Local::Tangents, average: Average::Planes, smoothing: 2 * o.smoothing, low_pass: FIELD_LOW_PASS, follow_density: true, ..o },
             Fitted::Scene => o,
         }
     }
@@ -346,6 +356,7 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     let spacing = mean_spacing_of(&first) as f64;
     let reach2 = (opts.max_distance as f64 * spacing).powi(2);
     let sparse_reach2 = SparseReach::of(&by_rank, spacing, opts.max_distance as f64);
+    let density = opts.follow_density.then(|| LocalDensity::new(&by_rank));
     let index = PointIndex::new(points);
     let k = opts.k.min(points.len());
     report.neighbours = k;
@@ -357,12 +368,22 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     // Each vertex's plane (a point on it and its normal, turned to the mesh's side; None where it
     // stays), the vertices split over the cores.
     let mut planes: Vec<Option<([f64; 3], [f64; 3])>> = vec![None; mesh.positions.len()];
-    let moved = crate::par::fill(&mut planes, |start, chunk| {
+    let counts = crate::par::fill(&mut planes, |start, chunk| {
         let mut near = Vec::with_capacity(k);
-        let (mut moved, mut sparse) = (0, 0);
+        let mut done = Counts::default();
         for (i, m) in (start..).zip(chunk.iter_mut()) {
             let (v, n_mesh) = (mesh.positions[i], mesh.normals[i]);
             index.k_nearest(v, k, &mut near);
+            if let Some(density) = &density {
+                let k_here = density.neighbours(&near, opts.k).min(points.len());
+                if k_here < near.len() {
+                    near.truncate(k_here);
+                    done.fewer += 1;
+                } else if k_here > near.len() {
+                    index.k_nearest(v, k_here, &mut near);
+                    done.more += 1;
+                }
+            }
             let Some(&(d2, nearest)) = near.first() else { continue };
             let d2 = d2 as f64;
             // Within the cloud's reach, or only within the sparse nearest point's own (which
@@ -388,14 +409,16 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
                 // that neighbours' normals can be averaged.
                 let (n, off) = if dot(n, n_mesh.map(f64::from)) < 0.0 { (n.map(|x| -x), -off) } else { (n, off) };
                 *m = Some((sub(v.map(f64::from), n.map(|x| off * x)), n));
-                moved += 1;
-                sparse += sparse_only as usize;
+                done.moved += 1;
+                done.sparse += sparse_only as usize;
             }
         }
-        (moved, sparse)
+        done
     });
-    report.moved = moved.iter().map(|c| c.0).sum();
-    report.sparse = moved.iter().map(|c| c.1).sum();
+    report.moved = counts.iter().map(|c| c.moved).sum();
+    report.sparse = counts.iter().map(|c| c.sparse).sum();
+    report.fewer = counts.iter().map(|c| c.fewer).sum();
+    report.more = counts.iter().map(|c| c.more).sum();
     report.kept = planes.len() - report.moved;
     if opts.smoothing > 0 {
         edges.get_or_insert_with(|| Neighbours::of(&mesh.indices, n_vertices));
@@ -423,6 +446,68 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     report.mean_shift = if report.moved > 0 && spacing > 0.0 { shift / report.moved as f64 / spacing } else { 0.0 };
     mesh.compute_vertex_normals();
     report
+}
+
+/// What one core's share of the vertices did in [`fit_to_points`].
+#[derive(Default)]
+struct Counts {
+    moved: usize,
+    sparse: usize,
+    fewer: usize,
+    more: usize,
+}
+
+/// The neighbours [`FitOptions::for_points`] fits each plane to on a cloud of `n` points spread
+/// evenly: 0.2·√n, at least 8 and at most 32.
+fn neighbours_for(n: f64) -> usize {
+    (0.2 * n.sqrt()).round().clamp(8.0, 32.0) as usize
+}
+
+/// The density around a vertex as a point count: the cloud's count, times the squared ratio of
+/// the cloud's mean [`SparseReach::RANK`]-th neighbour distance to the mean of that distance over
+/// the vertex's k nearest points (the count of an evenly spread cloud as dense as the points
+/// there). Where that is more than [`LocalDensity::BAND`] times sparser or denser than the
+/// cloud's own, k is scaled as [`neighbours_for`] scales it with the count, so that each plane
+/// spans about the area it spans on an even cloud of that density.
+///
+/// Why: on a scan whose density falls along it (the density-falloff clouds, 55 times from end to
+/// end) the cloud's k spread the sparse end's planes over an area several times wider than an
+/// even cloud of that density would, and a plane over a curved patch that wide sags inside it.
+/// Chosen on the density-falloff clouds (mean CD1 x100 of the tuning shapes cow, fandisk,
+/// suzanne: 0.4939 -> 0.4865; docs/fit.md, "k follows the density"). The band keeps the even
+/// clouds' k: without it the noise of each vertex's own density moved k on the eval clouds and
+/// cost them up to 0.0017 (10k).
+struct LocalDensity<'a> {
+    by_rank: &'a [f32],
+    mean: f64,
+    count: f64,
+}
+
+impl<'a> LocalDensity<'a> {
+    const BAND: f64 = 2.0;
+
+    fn new(by_rank: &'a [f32]) -> LocalDensity<'a> {
+        let mean = by_rank.iter().map(|&x| x as f64).sum::<f64>() / by_rank.len().max(1) as f64;
+        LocalDensity { by_rank, mean, count: by_rank.len() as f64 }
+    }
+
+    /// The neighbours to fit a vertex's plane to, given its `near`est points (at least `k`
+    /// where there are so many) and the cloud's `k`.
+    fn neighbours(&self, near: &[(f32, u32)], k: usize) -> usize {
+        let near = &near[..near.len().min(k)];
+        if near.is_empty() || !(self.mean > 0.0) {
+            return k;
+        }
+        let local = near.iter().map(|&(_, j)| self.by_rank[j as usize] as f64).sum::<f64>() / near.len() as f64;
+        let like = self.count * (self.mean / local.max(self.mean * 1e-6)).powi(2);
+        if like > self.count / Self::BAND && like < self.count * Self::BAND {
+            return k;
+        }
+        // k in proportion to the even-cloud rule, so that a k already widened for noise
+        // (FitOptions::for_cloud) keeps its widening.
+        let scaled = k as f64 * neighbours_for(like) as f64 / neighbours_for(self.count) as f64;
+        (scaled.round() as usize).clamp(k.min(8), k.max(32))
+    }
 }
 
 /// How far from a point a vertex may be and still be fitted where the points are sparser than
@@ -804,7 +889,7 @@ mod tests {
             colors: None,
             indices: vec![0, 1, 2, 1, 3, 2],
         };
-        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, average: Average::Moves, low_pass: 0, local: Local::Plane });
+        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, average: Average::Moves, low_pass: 0, local: Local::Plane, follow_density: false });
         assert_eq!((r.moved, r.kept), (3, 1));
         for v in &mesh.positions[..3] {
             assert!((v[2] - 0.1).abs() < 1e-6, "{v:?}");
@@ -901,6 +986,43 @@ mod tests {
         assert_eq!(landed, 64, "{report:?}");
         assert!(report.sparse >= beyond_the_mean, "{report:?}");
         assert_eq!(mesh.positions[64], [4.0, 0.0, 0.01], "no point within reach: left alone");
+    }
+
+    #[test]
+    fn k_follows_the_density_where_it_falls() {
+        // The radius-0.4 sphere, clean, its density falling 40 times from z = -0.4 to z = 0.4
+        // (as the density-falloff clouds'); vertices hovering over its sparse cap.
+        let mut rng = crate::rng::SplitMix64(5);
+        let points: Vec<[f32; 3]> = noisy_sphere(40_000, 0.0).into_iter().filter(|p| rng.unit() < 40f64.powf(-(p[2] as f64 + 0.4) / 0.8)).take(3000).collect();
+        assert!(points.len() > 2500, "the set-up: {} points", points.len());
+        let dirs: Vec<[f32; 3]> = noisy_sphere(400, 0.0).into_iter().filter(|d| d[2] > 0.25).collect();
+        let opts = FitOptions { smoothing: 0, local: Local::Plane, ..FitOptions::for_points(points.len()) };
+        let fit = |follow_density: bool| {
+            let mut mesh = hovering(&dirs);
+            let r = fit_to_points(&mut mesh, &points, &FitOptions { follow_density, ..opts });
+            let err = mesh.positions.iter().map(|v| (v.iter().map(|&c| (c as f64).powi(2)).sum::<f64>().sqrt() - 0.4).abs()).sum::<f64>();
+            (err / dirs.len() as f64, r)
+        };
+        let ((cloud_k, before), (local_k, after)) = (fit(false), fit(true));
+        println!("sparse cap, mean radius error: the cloud's k {cloud_k:e}, k following the density {local_k:e} ({after:?})");
+        assert_eq!((before.fewer, before.more), (0, 0));
+        assert!(after.fewer > dirs.len() / 2, "{after:?}");
+        assert!(local_k < 0.8 * cloud_k, "the plane over the cloud's k sags more: {local_k:e} against {cloud_k:e}");
+    }
+
+    #[test]
+    fn an_even_cloud_keeps_its_k() {
+        // Uniform random samples clump here and there (the eval clouds: about 1 % of the
+        // vertices); without the band every vertex's k would follow its own clump.
+        let points = noisy_sphere(3000, 0.005);
+        let dirs = noisy_sphere(300, 0.0);
+        let opts = FitOptions { smoothing: 0, ..FitOptions::for_points(points.len()) };
+        let (mut a, mut b) = (hovering(&dirs), hovering(&dirs));
+        fit_to_points(&mut a, &points, &FitOptions { follow_density: false, ..opts });
+        let r = fit_to_points(&mut b, &points, &FitOptions { follow_density: true, ..opts });
+        assert!(r.fewer + r.more <= dirs.len() / 10, "an even cloud: its k almost everywhere ({r:?})");
+        let same = a.positions.iter().zip(&b.positions).filter(|(p, q)| p == q).count();
+        assert!(same >= dirs.len() - r.fewer - r.more, "{same} of {} vertices where they were", dirs.len());
     }
 
     /// Vertices (no triangles) 0.01 outside the radius-0.4 sphere along the directions `dirs`
@@ -1067,7 +1189,7 @@ mod tests {
             colors: None,
             indices: vec![],
         };
-        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, average: Average::Moves, low_pass: 0, local: Local::Plane });
+        let r = fit_to_points(&mut mesh, &points, &FitOptions { k: 12, scale: 0.7, max_distance: 5.0, smoothing: 0, average: Average::Moves, low_pass: 0, local: Local::Plane, follow_density: false });
         assert_eq!((r.moved, r.kept), (0, 1));
         assert_eq!(mesh.positions[0], [0.01, 0.05, 0.05]);
     }

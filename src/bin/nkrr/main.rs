@@ -337,10 +337,17 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     }
     if let Some(f) = &rec.fit {
         tell!(
-            "fit to the points: {} vertices moved (mean {:.2} spacings){}, {} left alone; {} triangles turned over, {} after the repair{}{}",
+            "fit to the points: {} vertices moved (mean {:.2} spacings){}{}, {} left alone; {} triangles turned over, {} after the repair{}{}",
             f.moved,
             f.mean_shift,
             if f.sparse > 0 { format!(", {} of them where the points are sparser than the cloud's mean", f.sparse) } else { String::new() },
+            match (f.fewer, f.more) {
+                (0, 0) => String::new(),
+                (fewer, more) => format!(
+                    "; planes of {} points (fewer at {fewer} vertices, where the points are over twice sparser than the cloud's mean; more at {more}, where over twice denser)",
+                    f.neighbours
+                ),
+            },
             f.kept,
             f.flipped,
             f.flipped_after_repair,
