@@ -337,7 +337,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
     }
     if let Some(f) = &rec.fit {
         tell!(
-            "fit to the points: {} vertices moved (mean {:.2} spacings){}{}, {} left alone; {} triangles turned over, {} after the repair{}{}",
+            "fit to the points: {} vertices moved (mean {:.2} spacings){}{}{}, {} left alone; {} triangles turned over, {} after the repair{}{}",
             f.moved,
             f.mean_shift,
             if f.sparse > 0 { format!(", {} of them where the points are sparser than the cloud's mean", f.sparse) } else { String::new() },
@@ -348,6 +348,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
                     f.neighbours
                 ),
             },
+            if f.other_side > 0 { format!("; {} vertices' planes without the points of a thin part's other side", f.other_side) } else { String::new() },
             f.kept,
             f.flipped,
             f.flipped_after_repair,
