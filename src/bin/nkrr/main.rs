@@ -305,7 +305,9 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             Stage::Pairs => "sampling and labelling training pairs".to_string(),
             Stage::Tuning { step, of, loss } => format!("tuning: step {step}/{of}, loss {loss:.6}{}", left("tuning", *step, *of)),
             Stage::Surface => "solving the Poisson surface (normals signed by the field's mesh)".to_string(),
-            Stage::Meshing { evaluated, expected } => format!("meshing: {evaluated} field evaluations (of about {expected})"),
+            Stage::Meshing { evaluated, expected } if evaluated <= expected => format!("meshing: {evaluated} field evaluations (of about {expected})"),
+            // The count is a typical surface's; a thin or intricate one takes more.
+            Stage::Meshing { evaluated, expected } => format!("meshing: {evaluated} field evaluations (more than the usual {expected}: an intricate surface)"),
             Stage::Tile { done, of } => format!("tiles: {done} of {of}{}", left("tiles", *done, *of)),
             // Pieces of a scene's mesh are for viewers to show; the tile count says enough here.
             Stage::Meshed { .. } => return true,
