@@ -361,8 +361,9 @@ pub fn fit_to_points(mesh: &mut Mesh, points: &[[f32; 3]], opts: &FitOptions) ->
     let (by_rank, first) = (ranks.pop().unwrap_or_default(), ranks.pop().unwrap_or_default());
     let spacing = mean_spacing_of(&first) as f64;
     let reach2 = (opts.max_distance as f64 * spacing).powi(2);
-    let sparse_reach2 = SparseReach::of(&by_rank, spacing, opts.max_distance as f64);
-    let density = opts.follow_density.then(|| LocalDensity::new(&by_rank));
+    let density = LocalDensity::new(&by_rank);
+    let sparse_reach2 = SparseReach::of(&density, spacing, opts.max_distance as f64);
+    let density = opts.follow_density.then_some(density);
     let index = PointIndex::new(points);
     let sides = opts.one_side.then(|| sides(mesh, points));
     let k = opts.k.min(points.len());
@@ -579,9 +580,10 @@ impl SparseReach {
     const MIN_COS: f64 = 0.8;
 
     /// Each point's own reach, squared, from its distance to its [`SparseReach::RANK`]-th
-    /// neighbour `d` (the loop takes the cloud's where that is larger).
-    fn of(d: &[f32], spacing: f64, max_distance: f64) -> Vec<f64> {
-        let mean = d.iter().map(|&x| x as f64).sum::<f64>() / d.len().max(1) as f64;
+    /// neighbour (`density`'s distances, over their mean; the loop takes the cloud's reach where
+    /// that is larger).
+    fn of(density: &LocalDensity, spacing: f64, max_distance: f64) -> Vec<f64> {
+        let (d, mean) = (density.by_rank, density.mean);
         if !(mean > 0.0) {
             return vec![0.0; d.len()];
         }
