@@ -773,6 +773,9 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
     w("scripts/hard_clouds.py --spsr   # the harder clouds and screened Poisson on them")
     if sparse:
         w(f"nkrr eval target/results/data --sizes {','.join(SPARSE_SIZES)} --methods {SPARSE_METHODS}   # the sparse clouds")
+    if thin:
+        w(f"scripts/thin_clouds.py target/results/thin && nkrr eval target/results/thin --sizes {','.join(THIN_SIZES)} "
+          "--methods network,nkrr   # the thin-walled cups")
     w("nkrr eval target/results/hard --sizes " + ",".join(HARD_KINDS)
       + " --methods " + HARD_METHODS)
     if scenes:
