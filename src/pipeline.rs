@@ -128,7 +128,8 @@ impl Engine {
     pub async fn reconstruct(&self, cloud: &PointCloud, settings: &Settings, progress: &mut dyn FnMut(&Stage) -> bool) -> Result<Reconstruction, PipelineError> {
         let (mut settings, mut first) = (settings.clone(), None);
         loop {
-            match self.attempt(cloud, &settings, progress).await? {
+            // The second attempt knows the scan saw one side (`first` holds the balloon's notice).
+            match self.attempt(cloud, &settings, first.is_some(), progress).await? {
                 Attempt::Done(mut rec) => {
                     if let Some((notice, seconds)) = first {
                         rec.notices.insert(0, notice);
@@ -143,7 +144,7 @@ impl Engine {
         }
     }
 
-    async fn attempt(&self, cloud: &PointCloud, settings: &Settings, progress: &mut dyn FnMut(&Stage) -> bool) -> Result<Attempt, PipelineError> {
+    async fn attempt(&self, cloud: &PointCloud, settings: &Settings, one_sided: bool, progress: &mut dyn FnMut(&Stage) -> bool) -> Result<Attempt, PipelineError> {
         let t_all = now();
         let mut timings = Vec::new();
         let mut notices = Vec::new();
@@ -280,7 +281,7 @@ impl Engine {
 
         let mut mesh = extraction.mesh;
         // Fitted and trimmed in the unit cube, against the points the network saw.
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, crate::mesh::fit::Fitted::object(plan.poisson), None, &mut notices, &mut timings);
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, crate::mesh::fit::Fitted::object(plan.poisson), one_sided, None, &mut notices, &mut timings);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }

@@ -21,19 +21,22 @@ pub struct Finished {
 /// Finishes `mesh` against `points` as `settings` ask, adding what it says to `notices` and
 /// each step's seconds to `timings`. `fitted`: what the mesh is, which decides the fit ([`Fitted`]).
 /// `sheet_gap`: a scene's (with [`Settings::one_layer`]), the most two coincident layers lie
-/// apart after the fit ([`single_layer`]); objects pass None.
+/// apart after the fit ([`single_layer`]); objects pass None. `one_sided`: the scan saw one side
+/// of the object (the Poisson surface ballooned), so pieces that no point is near are the
+/// prior's guess of the rest and stay ([`super::remove_unsupported_components`]).
 #[allow(clippy::too_many_arguments)]
 pub fn finish(
     mesh: &mut Mesh,
     points: &[[f32; 3]],
     settings: &Settings,
     fitted: Fitted,
+    one_sided: bool,
     sheet_gap: Option<f32>,
     notices: &mut Vec<String>,
     timings: &mut Vec<(&'static str, f64)>,
 ) -> Finished {
     if let Some(share) = settings.min_support {
-        let r = super::remove_unsupported_components(mesh, points, share as f32);
+        let r = super::remove_unsupported_components(mesh, points, share as f32, one_sided);
         notices.extend(r.unsupported_notice(share));
     }
     let fit = settings.fit.then(|| {
