@@ -266,12 +266,12 @@ impl Engine {
             let far = crate::poisson::far_share(&surface.mesh, &points);
             if settings.surface == Surface::Auto && far > crate::poisson::MAX_FAR_SHARE {
                 // A one-sided scan: the field's own mesh at the resolution asked, not the balloon.
-                let notice = format!("the Poisson surface put {:.0} % of its area far from every point (a scan of one side?): the mesh is the field's level set instead (--surface poisson keeps the Poisson surface)", 100.0 * far);
+                let notice = format!("the Poisson surface put {:.0} % of its area far from every point (a scan of one side?): the mesh is the field's level set instead (--surface poisson, \"Surface\": screened Poisson, keeps the Poisson surface)", 100.0 * far);
                 return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all });
             }
             notices.push(chi.notice(&orientation, points.len()));
             if settings.method == Method::Nkrr {
-                notices.push("the kernel regression was not tuned: the Poisson surface takes only its normals' signs from the field, the network's as good as the tuned one's (docs/poisson.md); --surface field meshes the tuned field".into());
+                notices.push("the kernel regression was not tuned: the Poisson surface takes only its normals' signs from the field, the network's as good as the tuned one's (docs/poisson.md); --surface field (\"Surface\": the field's level set) meshes the tuned field".into());
             }
             extraction = surface;
             extraction.stats.refine = field_stats;

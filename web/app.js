@@ -205,7 +205,9 @@ function stageText(p, opts) {
     case 'pairs': return 'Sampling and labelling training pairs…';
     case 'tuning': return `Tuning: step ${p.step} of ${p.of}, loss ${p.loss.toPrecision(4)}${left(p, p.step, p.of, ' for the tuning')}`;
     case 'surface': return 'Solving the Poisson surface (normals signed by the field’s mesh)…';
-    case 'meshing': return `Meshing at ${opts.resolution}³: ${fmt.format(p.evaluated)} field evaluations`;
+    // Past the typical count the bar stays full (it cannot know the end): the words say why.
+    case 'meshing': return `Meshing at ${opts.resolution}³: ${fmt.format(p.evaluated)} field evaluations${
+      p.expected && p.evaluated > p.expected ? `, more than the usual ${fmt.format(p.expected)}: an intricate surface` : ''}`;
     case 'tiles': return `Scene: tile ${fmt.format(p.done)} of ${fmt.format(p.of)}${left(p, p.done, p.of, '')}`;
     case 'done': return 'Writing the GLB…';
     default: return p.stage;
