@@ -404,6 +404,39 @@ def lever_table(base_rows, var_rows, sizes, base_label, var_label):
     return "\n".join(lines)
 
 
+def lever_render(work, m, candidates):
+    """Where lever `m` matters most, drawn: of `candidates` ((data, shape, size, reference
+    method, reference CD1, variant CD1), over the eval clouds and the harder set where the lever
+    ran there), the cloud where the reference is furthest ahead of the variant (the lever turned
+    back, or a variant turned on), reconstructed again with both (meshes kept) and rendered as
+    rows truth / variant / reference (docs/img/results-lever-M.png). Returns (path, that
+    candidate, the one where the variant is furthest ahead) or None when it ran nowhere."""
+    if not candidates:
+        return None
+    gain = max(candidates, key=lambda c: c[5] - c[4])
+    loss = min(candidates, key=lambda c: c[5] - c[4])
+    out = os.path.join(IMG, f"results-lever-{m}.png")
+    if not os.path.exists(out):
+        data, shape, size, ref = gain[:4]
+        prefix = os.path.join(work, f"lever-render-{m}")
+        args = ["--shapes", shape, "--sizes", size, "--methods", f"{ref},{m}", "--keep-meshes"]
+        sh([NKRR, "eval", os.path.join(work, data), "--out", prefix] + args + (FIELD if m in FIELD_LEVERS else []))
+        inputs = [os.path.join(work, data, f"{shape}.obj"), f"{prefix}-{shape}-{size}-{m}.glb",
+                  f"{prefix}-{shape}-{size}-{ref}.glb"]
+        tmp = prefix + ".png"
+        sh([".venv/bin/python", "scripts/render.py", *inputs, "-o", tmp, "--size", "130", "--samples", "120000"])
+        from PIL import Image
+        Image.open(tmp).convert("RGB").quantize(colors=48).save(out, optimize=True)
+    return out, gain, loss
+
+
+def lever_candidates(m, ref_rows, var_rows, data):
+    """(data, shape, size, reference method, reference CD1, variant CD1) for every cloud both ran."""
+    ref = {(r["shape"], r["size"]): r for r in ref_rows}
+    return [(data, r["shape"], r["size"], ref[(r["shape"], r["size"])]["method"], ref[(r["shape"], r["size"])]["cd1x100"],
+             r["cd1x100"]) for r in var_rows if r["method"] == m and (r["shape"], r["size"]) in ref]
+
+
 def spsr_phase(work):
     out = os.path.join(work, "spsr")
     jl = os.path.join(out, "spsr.jsonl")
@@ -863,6 +896,20 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
                 w(lever_table(nkf, [r for r in lv if r["method"] == m], SIZES, "nkrr-field", m))
             else:
                 w(lever_table(nk, [r for r in lv + runs if r["method"] == m], SIZES, "default", m))
+            # Where it matters most, drawn (the harder set too where the lever ran there).
+            base = nkf if m in FIELD_LEVERS else nk
+            cands = lever_candidates(m, base, lv + runs, "data")
+            if hard and m not in FIELD_LEVERS:
+                hr = hard[0]["runs"]
+                cands += lever_candidates(m, [r for r in hr if r["method"] == "nkrr"], hr, "hard")
+            drawn = lever_render(work, m, cands)
+            if drawn:
+                path, g, l = drawn
+                ref = "nkrr-field" if m in FIELD_LEVERS else "the default"
+                w(f"\nCD1 x100 where {ref} is furthest ahead of the variant: {g[1]}-{g[2]} ({m} {fmt(g[5])} against "
+                  f"{fmt(g[4])}), drawn below (rows: the truth, {m}, {ref}); where the variant is furthest ahead: "
+                  f"{l[1]}-{l[2]} ({fmt(l[5])} against {fmt(l[4])}).\n")
+                w(f"![{m} on {g[1]}-{g[2]}: the truth, {m}, {ref}](img/{os.path.basename(path)})\n")
             w("")
         w("### Lever 6: another prior\n")
         if prior:
@@ -1112,6 +1159,10 @@ def main():
         for img, phase in (("results-render.png", "render"), ("results-before-after.png", "levers")):
             if p == phase and os.path.exists(os.path.join(IMG, img)):
                 os.remove(os.path.join(IMG, img))
+        if p in ("levers", "main", "hard"):
+            # Each lever's render follows the runs that chose its cloud.
+            for q in glob.glob(os.path.join(IMG, "results-lever-*.png")):
+                os.remove(q)
     phases = a.phases.split(",")
     abl_shapes = a.ablation_shapes.split(",")
     if "main" in phases:
