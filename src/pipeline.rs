@@ -265,9 +265,14 @@ impl Engine {
             let surface = extract_gpu_async(&self.gpu, values, &opts).await.map_err(PipelineError::Mesh)?;
             let far = crate::poisson::far_share(&surface.mesh, &points);
             if settings.surface == Surface::Auto && far > crate::poisson::MAX_FAR_SHARE {
-                // A one-sided scan: the field's own mesh at the resolution asked, not the balloon.
-                let notice = format!("the Poisson surface put {:.0} % of its area far from every point (a scan of one side?): the mesh is the field's level set instead (--surface poisson, \"Surface\": screened Poisson, keeps the Poisson surface)", 100.0 * far);
-                return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all });
+                // The field's own mesh (the one that signed the normals) against the balloon.
+                let field_far = crate::poisson::far_share(&extraction.mesh, &points);
+                if crate::poisson::ballooned(far, field_far) {
+                    // A one-sided scan: the field's own mesh at the resolution asked, not the balloon.
+                    let notice = format!("the Poisson surface put {:.0} % of its area far from every point, the field's own level set {:.0} % (a scan of one side?): the mesh is the field's level set instead (--surface poisson, \"Surface\": screened Poisson, keeps the Poisson surface)", 100.0 * far, 100.0 * field_far);
+                    return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all });
+                }
+                notices.push(format!("the Poisson surface put {:.0} % of its area far from every point, but the field's own level set {:.0} % (walls thinner than the field resolves, or an opening the points ring?): the Poisson surface is kept (--surface field, \"Surface\": the field's level set, meshes the field)", 100.0 * far, 100.0 * field_far));
             }
             notices.push(chi.notice(&orientation, points.len()));
             if settings.method == Method::Nkrr {

@@ -691,6 +691,26 @@ fn contradicted(solution: &Solution, points: &[[f32; 3]], normals: &[[f32; 3]]) 
 /// falling 55 times, and 11–38 % on one-sided scans (suzanne 11.1 %, fandisk 14.5 %, cow 37.8 %).
 pub const MAX_FAR_SHARE: f64 = 0.1;
 
+/// Past [`MAX_FAR_SHARE`], `--surface auto` meshes the field instead only where the field's own
+/// mesh (the one that signed the normals) puts less than this share of the Poisson surface's far
+/// area share far from the points ([`ballooned`]). A one-sided scan: the field closes the unseen
+/// side near the points and the solve balloons. Walls thinner than the field resolves (a cup whose
+/// wall is 1.25-2 % of its height, under 4 sigma of the noise): the field's mesh is a lumpy fill
+/// farther from the points than the Poisson surface, whose only fault is a lid over the opening,
+/// and the field's level set is the worse mesh (cup010-3k: 2.08 CD1 x100 kept, 3.08 network and
+/// 3.58 nkrr as the field). Measured (network-oriented, `nkrr reconstruct`): the harder set's six
+/// one-sided clouds, field / Poisson 0.0015 / 0.71 (fandisk) to 0.074 / 0.61 (cow), at most 0.12
+/// of it; cups of 1.25 % and 1.5 % walls at 3k and 10k (`scripts/thin_clouds.py`, seed 11), 1.21
+/// (0.166 / 0.137) to 1.69 times it. 0.5 sits between, a factor of 4 from the one-sided scans'.
+pub const FIELD_FAR_RATIO: f64 = 0.5;
+
+/// Whether `--surface auto` meshes the field's level set instead of a Poisson surface that put
+/// `far` of its area far from the points, where the field's own mesh put `field_far`
+/// ([`far_share`] both): a balloon over what the scan never saw.
+pub fn ballooned(far: f64, field_far: f64) -> bool {
+    far > MAX_FAR_SHARE && field_far < FIELD_FAR_RATIO * far
+}
+
 /// Far, for [`far_share`]: this many mean point spacings.
 pub const FAR_SPACINGS: f32 = 5.0;
 
@@ -894,6 +914,15 @@ mod tests {
 
     /// The share of a mesh's area far from the points: none for a sphere sampled all over, about
     /// half when only one hemisphere was sampled.
+    #[test]
+    fn a_balloon_is_far_where_the_fields_mesh_is_not() {
+        // The harder set's one-sided cow (network-oriented) and a 1.25 % cup at 10k.
+        assert!(ballooned(0.607, 0.074));
+        assert!(!ballooned(0.153, 0.195));
+        // Under the share nothing falls back, however near the field's mesh.
+        assert!(!ballooned(MAX_FAR_SHARE, 0.0));
+    }
+
     #[test]
     fn far_share_measures_the_area_away_from_the_points() {
         let (points, _, _) = sphere(4000, 0.3);
