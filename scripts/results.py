@@ -986,7 +986,7 @@ def report(work, main, spsr, rerun, seeds, scale, abl, abl_shapes, nkrr_max, ren
 
     w("## Thin walls: never worse than the network alone (issue 26)\n")
     if thin:
-        w("Cups whose wall and floor are 2.5 % (cup020) and 1.25 % (cup010) of their height thick "
+        w("Cups whose wall and floor are 2.5 % (cup020), 1.875 % (cup015) and 1.25 % (cup010) of their height thick "
           "(`scripts/thin_clouds.py`: the eval clouds' conventions and noise, seed 11), made to aim at thin "
           "walls and not part of the eval set. CD1 x100 / F-score; SPSR and iPSR run as on the other "
           "clouds (iPSR where `scripts/ipsr_runs.py --data target/results/thin --sizes 3k,10k --out "

@@ -700,7 +700,7 @@ pub const MAX_FAR_SHARE: f64 = 0.1;
 /// and the field's level set is the worse mesh (cup010-3k: 2.08 CD1 x100 kept, 3.08 network and
 /// 3.58 nkrr as the field). Measured (network-oriented, `nkrr reconstruct`): the harder set's six
 /// one-sided clouds, field / Poisson 0.0015 / 0.71 (fandisk) to 0.074 / 0.61 (cow), at most 0.12
-/// of it; cups of 1.25 % and 1.5 % walls at 3k and 10k (`scripts/thin_clouds.py`, seed 11), 1.21
+/// of it; cups of 1.25 % and 1.875 % walls at 3k and 10k (`scripts/thin_clouds.py`, seed 11), 1.21
 /// (0.166 / 0.137) to 1.69 times it. 0.5 sits between, a factor of 4 from the one-sided scans'.
 pub const FIELD_FAR_RATIO: f64 = 0.5;
 
