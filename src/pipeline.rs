@@ -245,6 +245,9 @@ impl Engine {
             return Err(PipelineError::Cancelled);
         }
         let mut extraction = extraction.map_err(PipelineError::Mesh)?;
+        // Set where the Poisson surface is kept over a field that is farther from the points
+        // still (thin walls): its far part is then opened, as `--trim` opens it.
+        let mut open_far = false;
         timings.push(("mesh", now() - t));
         peaks.end("meshing");
         if extraction.mesh.indices.is_empty() {
@@ -272,7 +275,11 @@ impl Engine {
                     let notice = format!("the Poisson surface put {:.0} % of its area far from every point, the field's own level set {:.0} % (a scan of one side?): the mesh is the field's level set instead (--surface poisson, \"Surface\": screened Poisson, keeps the Poisson surface)", 100.0 * far, 100.0 * field_far);
                     return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all });
                 }
-                notices.push(format!("the Poisson surface put {:.0} % of its area far from every point, but the field's own level set {:.0} % (walls thinner than the field resolves, or an opening the points ring?): the Poisson surface is kept (--surface field, \"Surface\": the field's level set, meshes the field)", 100.0 * far, 100.0 * field_far));
+                // Neither closes what the points leave open (a lid over a cup's opening, the fill
+                // of walls thinner than the field resolves): the Poisson surface, opened there.
+                open_far = settings.trim.is_none();
+                let opened = if open_far { format!(" and opened where it is farther than {} mean point spacings from them (--trim), as neither closure is the scan's", crate::mesh::trim::DEFAULT_TRIM) } else { String::new() };
+                notices.push(format!("the Poisson surface put {:.0} % of its area far from every point, but the field's own level set {:.0} % (walls thinner than the field resolves, or an opening the points ring?): the Poisson surface is kept{opened} (--surface poisson, \"Surface\": screened Poisson, keeps it whole; --surface field meshes the field)", 100.0 * far, 100.0 * field_far));
             }
             notices.push(chi.notice(&orientation, points.len()));
             if settings.method == Method::Nkrr {
@@ -286,7 +293,8 @@ impl Engine {
 
         let mut mesh = extraction.mesh;
         // Fitted and trimmed in the unit cube, against the points the network saw.
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, crate::mesh::fit::Fitted::object(plan.poisson), one_sided, None, &mut notices, &mut timings);
+        let opened = open_far.then(|| Settings { trim: Some(crate::mesh::trim::DEFAULT_TRIM), ..settings.clone() });
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, opened.as_ref().unwrap_or(settings), crate::mesh::fit::Fitted::object(plan.poisson), one_sided, None, &mut notices, &mut timings);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }

@@ -537,15 +537,20 @@ fn thin_cup(n: usize, t: f64, sigma: f64) -> PointCloud {
 /// A cup whose wall is thinner than the field resolves (1.25 % of its height, 2.5 sigma of the
 /// noise): the Poisson surface puts its lid over the opening far from the points, but the
 /// field's own level set is farther from them still (a lumpy fill), so `--surface auto` keeps
-/// the Poisson surface and says why, where a one-sided scan (above) falls back to the field.
+/// the Poisson surface, opened where it is far from the points as `--trim` opens it, and says
+/// why, where a one-sided scan (above) falls back to the field. `--surface poisson` keeps the
+/// lid (closed).
 #[test]
-fn a_thin_walled_cup_keeps_the_poisson_surface() {
+fn a_thin_walled_cup_keeps_the_poisson_surface_opened() {
     let cup = thin_cup(3000, 0.01, 0.004);
     let auto = reconstruct(&cup, &settings());
     let poisson = reconstruct(&cup, &Settings { surface: Surface::Poisson, ..settings() });
+    let trimmed = reconstruct(&cup, &Settings { surface: Surface::Poisson, trim: Some(nkrr::mesh::trim::DEFAULT_TRIM), ..settings() });
     let field = reconstruct(&cup, &Settings { surface: Surface::Field, ..settings() });
-    assert!(auto.notices.iter().any(|n| n.contains("far from every point") && n.contains("the Poisson surface is kept")), "{:?}", auto.notices);
-    assert_eq!(auto.mesh.indices, poisson.mesh.indices, "the Poisson surface, as --surface poisson makes it");
+    assert!(auto.notices.iter().any(|n| n.contains("far from every point") && n.contains("the Poisson surface is kept and opened")), "{:?}", auto.notices);
+    assert_eq!(auto.mesh.indices, trimmed.mesh.indices, "the Poisson surface, as --surface poisson --trim makes it");
+    assert!(poisson.mesh.is_watertight() && !auto.mesh.is_watertight());
+    assert!(auto.mesh.indices.len() < poisson.mesh.indices.len());
     let far = nkrr::poisson::far_share(&poisson.mesh, &cup.positions);
     let field_far = nkrr::poisson::far_share(&field.mesh, &cup.positions);
     assert!(far > nkrr::poisson::MAX_FAR_SHARE && !nkrr::poisson::ballooned(far, field_far), "Poisson {far}, field {field_far}");
