@@ -245,9 +245,7 @@ impl Engine {
             return Err(PipelineError::Cancelled);
         }
         let mut extraction = extraction.map_err(PipelineError::Mesh)?;
-        // Set where the Poisson surface is kept over a field that is farther from the points
-        // still (thin walls): its far part is then opened, as `--trim` opens it.
-        let mut open_far = false;
+        let mut open_far = false; // Thin walls: a Poisson surface kept over a worse field, opened.
         timings.push(("mesh", now() - t));
         peaks.end("meshing");
         if extraction.mesh.indices.is_empty() {
@@ -260,31 +258,19 @@ impl Engine {
             }
             let t = now();
             let (chi, orientation) = crate::poisson::from_mesh(&extraction.mesh, &points, crate::poisson::grid_for(opts.domain, opts.resolution, points.len()));
-            // χ is a cubic lookup, searched coarse to fine as the field is (the dense grid
-            // gave the same triangles on the tuning shapes, for twice the memory); the field's
-            // evaluation count is kept for the report.
+            // χ is a cubic lookup, searched coarse to fine as the field is (the dense grid gave the
+            // same triangles on the tuning shapes, for twice the memory); the field's count is kept.
             let field_stats = extraction.stats.refine.clone();
             let values = |q: Vec<[f32; 3]>| std::future::ready(Ok(q.iter().map(|&p| chi.value(p)).collect()));
             let surface = extract_gpu_async(&self.gpu, values, &opts).await.map_err(PipelineError::Mesh)?;
-            let far = crate::poisson::far_share(&surface.mesh, &points);
-            if settings.surface == Surface::Auto && far > crate::poisson::MAX_FAR_SHARE {
-                // The field's own mesh (the one that signed the normals) against the balloon.
-                let field_far = crate::poisson::far_share(&extraction.mesh, &points);
-                if crate::poisson::ballooned(far, field_far) {
-                    // A one-sided scan: the field's own mesh at the resolution asked, not the balloon.
-                    let notice = format!("the Poisson surface put {:.0} % of its area far from every point, the field's own level set {:.0} % (a scan of one side?): the mesh is the field's level set instead (--surface poisson, \"Surface\": screened Poisson, keeps the Poisson surface)", 100.0 * far, 100.0 * field_far);
-                    return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all });
-                }
-                // Neither closes what the points leave open (a lid over a cup's opening, the fill
-                // of walls thinner than the field resolves): the Poisson surface, opened there.
-                open_far = settings.trim.is_none();
-                let opened = if open_far { format!(" and opened where it is farther than {} mean point spacings from them (--trim), as neither closure is the scan's", crate::mesh::trim::DEFAULT_TRIM) } else { String::new() };
-                notices.push(format!("the Poisson surface put {:.0} % of its area far from every point, but the field's own level set {:.0} % (walls thinner than the field resolves, or an opening the points ring?): the Poisson surface is kept{opened} (--surface poisson, \"Surface\": screened Poisson, keeps it whole; --surface field meshes the field)", 100.0 * far, 100.0 * field_far));
+            // The field's own mesh (the one that signed the normals) against a balloon.
+            match (settings.surface, crate::poisson::Balloon::check(&surface.mesh, &extraction.mesh, &points, settings.trim)) {
+                (Surface::Auto, crate::poisson::Balloon::FieldInstead(notice)) => return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all }),
+                (Surface::Auto, crate::poisson::Balloon::Kept { notice, open }) => (open_far, _) = (open, notices.push(notice)),
+                _ => {}
             }
             notices.push(chi.notice(&orientation, points.len()));
-            if settings.method == Method::Nkrr {
-                notices.push("the kernel regression was not tuned: the Poisson surface takes only its normals' signs from the field, the network's as good as the tuned one's (docs/poisson.md); --surface field (\"Surface\": the field's level set) meshes the tuned field".into());
-            }
+            notices.extend((settings.method == Method::Nkrr).then(|| crate::poisson::UNTUNED.to_string()));
             extraction = surface;
             extraction.stats.refine = field_stats;
             timings.push(("poisson", now() - t));

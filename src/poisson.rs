@@ -139,7 +139,7 @@ impl Solution {
             _ => format!(", {by_surface} then turned by the surface itself in {rounds} more solves"),
         };
         format!(
-            "the mesh is a screened Poisson surface through the {points} points, their normals oriented by the field's mesh ({by_field} turned{resigned}): {}³ grid, {} multigrid iterations (residual {:.1e}{how}); --surface field meshes the field itself",
+            "the mesh is a screened Poisson surface through the {points} points, their normals oriented by the field's mesh ({by_field} turned{resigned}): {}³ grid, {} multigrid iterations (residual {:.1e}{how}); --surface field (\"Surface\": the field's level set) meshes the field itself",
             self.grid.res, self.iterations, self.residual
         )
     }
@@ -709,6 +709,57 @@ pub const FIELD_FAR_RATIO: f64 = 0.5;
 /// ([`far_share`] both): a balloon over what the scan never saw.
 pub fn ballooned(far: f64, field_far: f64) -> bool {
     far > MAX_FAR_SHARE && field_far < FIELD_FAR_RATIO * far
+}
+
+/// Said when nkrr meshes a Poisson surface: its normals' signs come from the network's field, as
+/// good as the tuned one's, so the regression is not tuned (this file's docs).
+pub const UNTUNED: &str = "the kernel regression was not tuned: the Poisson surface takes only its normals' signs from the field, the network's as good \
+    as the tuned one's (docs/poisson.md); --surface field (\"Surface\": the field's level set) meshes the tuned field";
+
+/// What `--surface auto` makes of a Poisson surface far from the points ([`Balloon::check`]).
+#[derive(Debug, PartialEq)]
+pub enum Balloon {
+    /// At most [`MAX_FAR_SHARE`] far: the Poisson surface as it is.
+    No,
+    /// A one-sided scan ([`ballooned`]): the field's level set instead, for the reason given.
+    FieldInstead(String),
+    /// Far, but the field's own mesh is farther still (walls thinner than the field resolves,
+    /// or an opening the points ring): the Poisson surface stays, said in `notice`, and is
+    /// opened where it is far from the points (`--trim`'s rule) when `open` (no trim was asked).
+    /// Neither closure is the scan's: a lid over a cup's opening, the fill of its walls.
+    Kept { notice: String, open: bool },
+}
+
+impl Balloon {
+    /// Judges `surface` (the Poisson surface) against `field` (the field's own mesh that signed
+    /// its normals) by their [`far_share`]s of `points`; `trim`: the one asked, if any.
+    pub fn check(surface: &crate::mesh::Mesh, field: &crate::mesh::Mesh, points: &[[f32; 3]], trim: Option<f32>) -> Balloon {
+        let far = far_share(surface, points);
+        if far <= MAX_FAR_SHARE {
+            return Balloon::No;
+        }
+        let field_far = far_share(field, points);
+        let one_sided = ballooned(far, field_far);
+        let (far, field_far) = (100.0 * far, 100.0 * field_far);
+        if one_sided {
+            return Balloon::FieldInstead(format!(
+                "the Poisson surface put {far:.0} % of its area far from every point, the field's own level set {field_far:.0} % (a scan of one side?): \
+                 the mesh is the field's level set instead (--surface poisson, \"Surface\": screened Poisson, keeps the Poisson surface)"
+            ));
+        }
+        let open = trim.is_none();
+        let opened = if open {
+            format!(" and opened where it is farther than {} mean point spacings from them (--trim), as neither closure is the scan's", crate::mesh::trim::DEFAULT_TRIM)
+        } else {
+            String::new()
+        };
+        let notice = format!(
+            "the Poisson surface put {far:.0} % of its area far from every point, but the field's own level set {field_far:.0} % (walls thinner than the \
+             field resolves, or an opening the points ring?): the Poisson surface is kept{opened} (--surface poisson, \"Surface\": screened Poisson, \
+             keeps it whole; --surface field meshes the field)"
+        );
+        Balloon::Kept { notice, open }
+    }
 }
 
 /// Far, for [`far_share`]: this many mean point spacings.
