@@ -266,7 +266,7 @@ impl Engine {
             // The field's own mesh (the one that signed the normals) against a balloon.
             match (settings.surface, crate::poisson::Balloon::check(&surface.mesh, &extraction.mesh, &points, settings.trim)) {
                 (Surface::Auto, crate::poisson::Balloon::FieldInstead(notice)) => return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all }),
-                (Surface::Auto, crate::poisson::Balloon::Kept { notice, open }) => (open_far, _) = (open, notices.push(notice)),
+                (Surface::Auto, crate::poisson::Balloon::Kept { notice, open }) => { open_far = open; notices.push(notice) }
                 _ => {}
             }
             notices.push(chi.notice(&orientation, points.len()));

@@ -743,7 +743,7 @@ impl Balloon {
         let (far, field_far) = (100.0 * far, 100.0 * field_far);
         if one_sided {
             return Balloon::FieldInstead(format!(
-                "the Poisson surface put {far:.0} % of its area far from every point, the field's own level set {field_far:.0} % (a scan of one side?): \
+                "the Poisson surface put {far:.1} % of its area far from every point, the field's own level set {field_far:.1} % (a scan of one side?): \
                  the mesh is the field's level set instead (--surface poisson, \"Surface\": screened Poisson, keeps the Poisson surface)"
             ));
         }
@@ -754,7 +754,7 @@ impl Balloon {
             String::new()
         };
         let notice = format!(
-            "the Poisson surface put {far:.0} % of its area far from every point, but the field's own level set {field_far:.0} % (walls thinner than the \
+            "the Poisson surface put {far:.1} % of its area far from every point, but the field's own level set {field_far:.1} % (walls thinner than the \
              field resolves, or an opening the points ring?): the Poisson surface is kept{opened} (--surface poisson, \"Surface\": screened Poisson, \
              keeps it whole; --surface field meshes the field)"
         );
