@@ -689,6 +689,9 @@ fn contradicted(solution: &Solution, points: &[[f32; 3]], normals: &[[f32; 3]]) 
 /// Chosen on the tuning shapes' clouds (3k, 10k and the harder set): their Poisson surfaces left
 /// 0.0 % far on clean and noisy scans, at most 6.1 % with 10 % stray points and 1.6 % with density
 /// falling 55 times, and 11–38 % on one-sided scans (suzanne 11.1 %, fandisk 14.5 %, cow 37.8 %).
+/// (Read again on 2026-12-05, since the surface re-signs its normals: one-sided 44–71 %, stray
+/// points at most 7.9 %, falloff at most 2.2 %; thin-walled cups 10–15 %, which [`ballooned`]
+/// tells apart by the field's own mesh.)
 pub const MAX_FAR_SHARE: f64 = 0.1;
 
 /// Past [`MAX_FAR_SHARE`], `--surface auto` meshes the field instead only where the field's own
