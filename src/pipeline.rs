@@ -263,10 +263,10 @@ impl Engine {
             let field_stats = extraction.stats.refine.clone();
             let values = |q: Vec<[f32; 3]>| std::future::ready(Ok(q.iter().map(|&p| chi.value(p)).collect()));
             let surface = extract_gpu_async(&self.gpu, values, &opts).await.map_err(PipelineError::Mesh)?;
-            // The field's own mesh (the one that signed the normals) against a balloon.
-            match (settings.surface, crate::poisson::Balloon::check(&surface.mesh, &extraction.mesh, &points, settings.trim)) {
-                (Surface::Auto, crate::poisson::Balloon::FieldInstead(notice)) => return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all }),
-                (Surface::Auto, crate::poisson::Balloon::Kept { notice, open }) => { open_far = open; notices.push(notice) }
+            // Judged only where the surface is ours to choose (`--surface poisson` keeps it).
+            match (settings.surface == Surface::Auto).then(|| crate::poisson::Balloon::check(&surface.mesh, &extraction.mesh, &points, settings.trim)) {
+                Some(crate::poisson::Balloon::FieldInstead(notice)) => return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all }),
+                Some(crate::poisson::Balloon::Kept { notice, open }) => { open_far = open; notices.push(notice) }
                 _ => {}
             }
             notices.push(chi.notice(&orientation, points.len()));
