@@ -6,7 +6,7 @@
 use super::fit::{fit_cloud, FitReport, Fitted};
 use super::sheets::single_layer;
 use super::simplify::{simplify, SimplifyReport, Target};
-use super::trim::{trim, TrimReport};
+use super::trim::{trim, trim_between_sheets, TrimReport, BETWEEN_SHEETS_DEPTH, DEFAULT_TRIM};
 use super::types::Mesh;
 use crate::gpu::now;
 use crate::settings::Settings;
@@ -22,8 +22,10 @@ pub struct Finished {
 /// each step's seconds to `timings`. `fitted`: what the mesh is, which decides the fit ([`Fitted`]).
 /// `sheet_gap`: a scene's (with [`Settings::one_layer`]), the most two coincident layers lie
 /// apart after the fit ([`single_layer`]); objects pass None. `one_sided`: the scan saw one side
-/// of the object (the Poisson surface ballooned), so pieces that no point is near are the
-/// prior's guess of the rest and stay ([`super::remove_unsupported_components`]).
+/// of the object or is an open shell (the Poisson surface ballooned), so pieces that no point is
+/// near are the prior's guess of the rest and stay ([`super::remove_unsupported_components`]),
+/// and, unless a trim was asked for, what lies far from the points deep inside their hull goes
+/// ([`trim_between_sheets`]).
 #[allow(clippy::too_many_arguments)]
 pub fn finish(
     mesh: &mut Mesh,
@@ -53,13 +55,25 @@ pub fn finish(
         timings.push(("one layer", now() - t));
         notices.extend(r.notice());
     }
-    let trim = settings.trim.map(|factor| {
-        let t = now();
-        let r = trim(mesh, points, factor);
+    let t = now();
+    let trim = match settings.trim {
+        Some(factor) => {
+            let r = trim(mesh, points, factor);
+            notices.push(r.notice(factor));
+            Some(r)
+        }
+        // The Poisson surface ballooned: a one-sided scan's closure stays, an open shell's fill goes.
+        None if one_sided => {
+            let (factor, depth) = (DEFAULT_TRIM, BETWEEN_SHEETS_DEPTH);
+            let r = trim_between_sheets(mesh, points, factor, depth);
+            notices.extend(r.between_sheets_notice(factor, depth));
+            Some(r)
+        }
+        None => None,
+    };
+    if trim.is_some() {
         timings.push(("trim", now() - t));
-        notices.push(r.notice(factor));
-        r
-    });
+    }
     // After the trim, so that the simplifier keeps the trimmed border where it is; before the
     // colours, which then go to the vertices that are left.
     let target = Target { triangles: settings.triangles, max_error: settings.max_error };
