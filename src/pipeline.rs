@@ -4,17 +4,15 @@
 //! through a callback that can also cancel between steps.
 
 use std::cell::RefCell;
-use std::fmt;
 
-use crate::cloud::{subsample, CloudError, Normalization, PointCloud};
-use crate::field::{self, Field, FitError};
-use crate::gpu::{now, Gpu, GpuError};
-use crate::krr::KrrError;
+use crate::cloud::{subsample, Normalization, PointCloud};
+use crate::field::{self, Field};
+use crate::gpu::{now, Gpu};
 use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, FieldError};
-use crate::net::{GpuNet, NetError, Weights};
+use crate::net::{GpuNet, Weights};
 use crate::plan::{DeviceFacts, MemoryPlan};
 use crate::settings::{Method, Settings, Surface};
-pub use crate::reconstruction::{Reconstruction, SceneReport};
+pub use crate::reconstruction::{PipelineError, Reconstruction, SceneReport};
 
 /// A stage of the pipeline, as reported to the progress callback.
 #[derive(Clone, Debug, PartialEq)]
@@ -40,63 +38,12 @@ pub enum Stage {
     Done,
 }
 
-/// What went wrong, in words a user can act on.
-#[derive(Debug)]
-pub enum PipelineError {
-    Cloud(CloudError),
-    Gpu(GpuError),
-    Net(NetError),
-    Mesh(ExtractError),
-    Krr(KrrError),
-    /// The field has no inside anywhere in the domain: there is no surface to mesh.
-    NoSurface { evaluations: u64, field_max: f32, method: Method },
-    Cancelled,
-}
-
-impl fmt::Display for PipelineError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            PipelineError::Cloud(e) => write!(f, "{e}"),
-            PipelineError::Gpu(e) => write!(f, "{e}"),
-            PipelineError::Net(e) => write!(f, "the network prior could not be loaded: {e}"),
-            PipelineError::Mesh(e) => write!(f, "mesh extraction failed: {e}"),
-            PipelineError::Krr(e) => write!(f, "the kernel regression failed: {e}"),
-            PipelineError::NoSurface { evaluations, field_max, method } => {
-                let (who, hint) = match method {
-                    Method::Nkrr => ("NKRR", "; the network alone (--method network) may still find one"),
-                    Method::Network => ("the network", ""),
-                };
-                write!(f, "no surface found: the field ({who}) is at or below 0, outside, at all {evaluations} points evaluated \
-                 (largest value {field_max:.3}), so nothing is inside anywhere. The prior sees the cloud as no \
-                 closed object: a flat patch, a sparse or scattered cloud, or a scene larger than one object{hint}")
-            }
-            PipelineError::Cancelled => write!(f, "cancelled"),
-        }
-    }
-}
-
-impl std::error::Error for PipelineError {}
-
-impl From<GpuError> for PipelineError {
-    fn from(e: GpuError) -> Self {
-        PipelineError::Gpu(e)
-    }
-}
-
-impl From<FitError> for PipelineError {
-    fn from(e: FitError) -> Self {
-        match e {
-            FitError::Gpu(e) => PipelineError::Gpu(e),
-            FitError::Krr(e) => PipelineError::Krr(e),
-            FitError::Cancelled => PipelineError::Cancelled,
-        }
-    }
-}
-
 /// One pass of [`Engine::reconstruct`]: the result, or the Poisson surface's reason to mesh the
 /// field instead and the seconds that pass took.
 enum Attempt {
-    Done(Reconstruction),
+    /// The result and, on a scan the Poisson surface ballooned over, the points' mean distance
+    /// to its mesh ([`crate::mesh::trim::reach`], in the unit cube).
+    Done(Reconstruction, Option<f64>),
     FieldInstead { notice: String, seconds: f64 },
 }
 
@@ -130,7 +77,17 @@ impl Engine {
         loop {
             // The second attempt knows the scan saw one side (`first` holds the balloon's notice).
             match self.attempt(cloud, &settings, first.is_some(), progress).await? {
-                Attempt::Done(mut rec) => {
+                Attempt::Done(mut rec, reach) => {
+                    // Never worse than the prior on a shell: where the tuned field's mesh leaves
+                    // the points farther than the network's (holes in a sheet it thinned), the
+                    // network's mesh (docs/poisson.md, "Open shells").
+                    if let (Some(tuned), Method::Nkrr) = (reach, settings.method) {
+                        let t = now();
+                        if let Attempt::Done(net, Some(prior)) = self.attempt(cloud, &Settings { method: Method::Network, ..settings.clone() }, true, progress).await? {
+                            rec = if tuned > prior { Reconstruction { notices: [vec![crate::mesh::trim::reach_notice(tuned, prior)], net.notices].concat(), ..net } } else { rec };
+                            rec.timings.push(("the network's mesh", now() - t));
+                        }
+                    }
                     if let Some((notice, seconds)) = first {
                         rec.notices.insert(0, notice);
                         rec.timings.insert(0, ("poisson attempt", seconds));
@@ -281,6 +238,7 @@ impl Engine {
         // Fitted and trimmed in the unit cube, against the points the network saw.
         let opened = open_far.then(|| Settings { trim: Some(crate::mesh::trim::DEFAULT_TRIM), ..settings.clone() });
         let finished = crate::mesh::finish::finish(&mut mesh, &points, opened.as_ref().unwrap_or(settings), crate::mesh::fit::Fitted::object(plan.poisson), one_sided, None, &mut notices, &mut timings);
+        let reach = one_sided.then(|| crate::mesh::trim::reach(&mesh, &points));
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }
@@ -294,6 +252,6 @@ impl Engine {
         let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
         (progress.borrow_mut())(&Stage::Done);
         let crate::mesh::finish::Finished { fit, trim, simplify } = finished;
-        Ok(Attempt::Done(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None }))
+        Ok(Attempt::Done(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None }, reach))
     }
 }

@@ -1,9 +1,16 @@
 //! What a reconstruction returns: the mesh in the cloud's coordinates and what each stage did
-//! ([`crate::pipeline`] makes it; [`crate::scene`] adds its tiles' report).
+//! ([`crate::pipeline`] makes it; [`crate::scene`] adds its tiles' report), or what went wrong.
 
-use crate::field::TuningSummary;
+use std::fmt;
+
+use crate::cloud::CloudError;
+use crate::field::{FitError, TuningSummary};
+use crate::gpu::GpuError;
+use crate::krr::KrrError;
 use crate::mesh::fit::FitReport;
-use crate::mesh::{ExtractStats, Mesh, TrimReport};
+use crate::mesh::{ExtractError, ExtractStats, Mesh, TrimReport};
+use crate::net::NetError;
+use crate::settings::Method;
 
 /// The result: the mesh, what happened, and how long each stage took.
 #[derive(Clone, Debug)]
@@ -55,5 +62,58 @@ impl Reconstruction {
     /// The mesh's vertex positions in user coordinates, in f64.
     pub fn positions_f64(&self) -> Vec<[f64; 3]> {
         self.mesh.positions.iter().map(|p| [0, 1, 2].map(|a| p[a] as f64 + self.origin[a])).collect()
+    }
+}
+
+/// What went wrong, in words a user can act on.
+#[derive(Debug)]
+pub enum PipelineError {
+    Cloud(CloudError),
+    Gpu(GpuError),
+    Net(NetError),
+    Mesh(ExtractError),
+    Krr(KrrError),
+    /// The field has no inside anywhere in the domain: there is no surface to mesh.
+    NoSurface { evaluations: u64, field_max: f32, method: Method },
+    Cancelled,
+}
+
+impl fmt::Display for PipelineError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            PipelineError::Cloud(e) => write!(f, "{e}"),
+            PipelineError::Gpu(e) => write!(f, "{e}"),
+            PipelineError::Net(e) => write!(f, "the network prior could not be loaded: {e}"),
+            PipelineError::Mesh(e) => write!(f, "mesh extraction failed: {e}"),
+            PipelineError::Krr(e) => write!(f, "the kernel regression failed: {e}"),
+            PipelineError::NoSurface { evaluations, field_max, method } => {
+                let (who, hint) = match method {
+                    Method::Nkrr => ("NKRR", "; the network alone (--method network) may still find one"),
+                    Method::Network => ("the network", ""),
+                };
+                write!(f, "no surface found: the field ({who}) is at or below 0, outside, at all {evaluations} points evaluated \
+                 (largest value {field_max:.3}), so nothing is inside anywhere. The prior sees the cloud as no \
+                 closed object: a flat patch, a sparse or scattered cloud, or a scene larger than one object{hint}")
+            }
+            PipelineError::Cancelled => write!(f, "cancelled"),
+        }
+    }
+}
+
+impl std::error::Error for PipelineError {}
+
+impl From<GpuError> for PipelineError {
+    fn from(e: GpuError) -> Self {
+        PipelineError::Gpu(e)
+    }
+}
+
+impl From<FitError> for PipelineError {
+    fn from(e: FitError) -> Self {
+        match e {
+            FitError::Gpu(e) => PipelineError::Gpu(e),
+            FitError::Krr(e) => PipelineError::Krr(e),
+            FitError::Cancelled => PipelineError::Cancelled,
+        }
     }
 }

@@ -604,6 +604,25 @@ fn an_open_shell_loses_the_fill_between_its_sheets() {
     assert!(e_auto < 0.5 * e_field, "{e_auto} vs {e_field}");
 }
 
+/// Issue 26's bound, on an open box whose sheets the tuned field thins through (holes in its
+/// walls, the points farther from its mesh than from the network's; tests/data/shells): the
+/// run keeps the network's mesh and says why, so nkrr is the network alone there, not worse.
+#[test]
+fn a_tuned_field_that_thins_a_sheet_through_gives_way_to_the_network() {
+    let path = common::repo_root().join("tests/data/shells/crate-3k.ply");
+    let cloud = nkrr::io::ply::read_ply(&std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap().cloud;
+    let nkrr_settings = Settings { method: Method::Nkrr, ..settings() };
+    let nkrr_run = reconstruct(&cloud, &nkrr_settings);
+    let network = reconstruct(&cloud, &settings());
+    assert!(nkrr_run.notices.iter().any(|n| n.contains("far from every point")), "{:?}", nkrr_run.notices);
+    assert!(nkrr_run.notices.iter().any(|n| n.contains("farther from the points than the network's")), "{:?}", nkrr_run.notices);
+    assert_eq!((&nkrr_run.mesh.indices, &nkrr_run.mesh.positions), (&network.mesh.indices, &network.mesh.positions), "the network's mesh");
+    // The tuned field's own mesh (--surface field: no balloon, no guard) is the farther one.
+    let tuned = reconstruct(&cloud, &Settings { surface: Surface::Field, ..nkrr_settings });
+    let reach = |m: &Mesh| nkrr::mesh::trim::reach(m, &cloud.positions);
+    assert!(reach(&tuned.mesh) > reach(&network.mesh), "{} vs {}", reach(&tuned.mesh), reach(&network.mesh));
+}
+
 /// Meshing progress moves with the work done (issue 17): the evaluations reported never run
 /// ahead of the evaluations made, grow in steps of at most one chunk (32768), and end at the
 /// extraction's own count.
