@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """The trim check of issue 8 on a one-sided scan: the points of spot-10k whose ground-truth
 surface faces +x (what a scanner on the +x side sees), reconstructed at the defaults (nkrr) with
-and without --trim, then rendered with scripts/render.py: points, closed, the faces
+and without --trim, then rendered with scripts/render.py: points, the default (closed but where
+the fill between sheets is opened, docs/poisson.md "Open shells"), the faces
 --trim removes, trimmed. Writes docs/img/trim-facing-x.png and prints the numbers.
 
 usage: .venv/bin/python scripts/trim_facing.py [NKRR_BIN]   (needs trimesh, scipy, pillow)
@@ -35,20 +36,20 @@ with tempfile.TemporaryDirectory() as tmp:
     header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(keep)}\n"
               "property float x\nproperty float y\nproperty float z\nend_header\n")
     cloud.write_bytes(header.encode() + keep.astype("<f4").tobytes())
-    closed, trimmed = tmp / "closed.ply", tmp / "trimmed.ply"
-    subprocess.run([BIN, "reconstruct", str(cloud), "-o", str(closed)], check=True)
+    default, trimmed = tmp / "default.ply", tmp / "trimmed.ply"
+    subprocess.run([BIN, "reconstruct", str(cloud), "-o", str(default)], check=True)
     subprocess.run([BIN, "reconstruct", str(cloud), "--trim", "-o", str(trimmed)], check=True)
     tree = cKDTree(keep)
     spacing = np.mean(tree.query(keep, k=2)[0][:, 1])
     removed = tmp / "removed-by-trim.ply"
-    for name, path in [("closed", closed), ("trimmed", trimmed)]:
+    for name, path in [("default", default), ("trimmed", trimmed)]:
         m = trimesh.load(path, process=False)
         d = tree.query(m.triangles_center)[0] / spacing
         far = d > 3
         boundary = len(trimesh.grouping.group_rows(m.edges_sorted, require_count=1))
         print(f"{name}: {len(m.faces)} faces, {m.area_faces[far].sum() / m.area:.1%} of the area farther than "
               f"3 spacings (at most {d.max():.1f}), {boundary} boundary edges")
-        if name == "closed":
+        if name == "default":
             m.submesh([np.nonzero(far)[0]], append=True).export(removed)
-    subprocess.run([sys.executable, str(ROOT / "scripts" / "render.py"), str(cloud), str(closed), str(removed),
+    subprocess.run([sys.executable, str(ROOT / "scripts" / "render.py"), str(cloud), str(default), str(removed),
                     str(trimmed), "-o", str(ROOT / "docs/img/trim-facing-x.png"), "--size", "260"], check=True)
