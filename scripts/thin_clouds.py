@@ -7,7 +7,8 @@ thickness at all (what src/mesh/trim.rs's BETWEEN_SHEETS_DEPTH was chosen on): a
 lower half of a sphere), a crate (a box without its lid), a shell (the upper half of an
 ellipsoid with two windows a side, like a car's body) and a tunnel (half a tube). Each
 with 3k and 10k clouds in the eval clouds' conventions (scripts/results_clouds.py: uniform
-samples, Gaussian noise 0.005 x the longest side; seed 11), so that
+samples, Gaussian noise 0.005 x the longest side; seed 11), and 500, 1k and 1,500-point clouds
+with the sparse clouds' seeds, so that
 
     target/release/nkrr eval target/results/thin --sizes 3k,10k --methods network,nkrr
 
@@ -22,7 +23,11 @@ import numpy as np
 import trimesh
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from results_clouds import noisy_samples, write_ply  # noqa: E402
+from results_clouds import SPARSE_SIZES, noisy_samples, write_ply  # noqa: E402
+
+# (tag, points, seed): the 3k and 10k clouds, and the sparse sizes of scripts/results_clouds.py
+# (500, 1k, 1,500: below 2,000 points, where the field's level set is the surface).
+SIZES = [("3k", 3000, 11), ("10k", 10000, 11)] + SPARSE_SIZES
 
 
 def part(mesh, keep):
@@ -57,8 +62,8 @@ def main():
     os.makedirs(out, exist_ok=True)
     for name, mesh in shells().items():
         mesh.export(os.path.join(out, f"{name}.obj"))
-        for n, tag in ((3000, "3k"), (10000, "10k")):
-            write_ply(os.path.join(out, f"{name}-{tag}.ply"), noisy_samples(mesh, n, 11))
+        for tag, n, seed in SIZES:
+            write_ply(os.path.join(out, f"{name}-{tag}.ply"), noisy_samples(mesh, n, seed))
         print("wrote", name)
     for t in (0.02, 0.015, 0.01):
         prof = np.array([[0, 0], [0.4, 0], [0.4, 0.8], [0.4 - t, 0.8], [0.4 - t, t], [0, t], [0, 0]])
@@ -67,8 +72,8 @@ def main():
         assert mesh.is_watertight, "the revolved profile is closed"
         name = f"cup{round(t * 1000):03d}"
         mesh.export(os.path.join(out, f"{name}.obj"))
-        for n, tag in ((3000, "3k"), (10000, "10k")):
-            write_ply(os.path.join(out, f"{name}-{tag}.ply"), noisy_samples(mesh, n, 11))
+        for tag, n, seed in SIZES:
+            write_ply(os.path.join(out, f"{name}-{tag}.ply"), noisy_samples(mesh, n, seed))
         print("wrote", name)
 
 

@@ -41,8 +41,9 @@ pub enum Stage {
 /// One pass of [`Engine::reconstruct`]: the result, or the Poisson surface's reason to mesh the
 /// field instead and the seconds that pass took.
 enum Attempt {
-    /// The result and, on a scan the Poisson surface ballooned over, the points' mean distance
-    /// to its mesh ([`crate::mesh::trim::reach`], in the unit cube).
+    /// The result and, where the field's level set is the surface under `--surface auto` (a
+    /// scan the Poisson surface ballooned over, a cloud under 2,000 points), the points' mean
+    /// distance to its mesh ([`crate::mesh::trim::reach`], in the unit cube).
     Done(Reconstruction, Option<f64>),
     FieldInstead { notice: String, seconds: f64 },
 }
@@ -83,7 +84,7 @@ impl Engine {
                     // network's mesh (docs/poisson.md, "Open shells").
                     if let (Some(tuned), Method::Nkrr) = (reach, settings.method) {
                         let t = now();
-                        if let Attempt::Done(net, Some(prior)) = self.attempt(cloud, &Settings { method: Method::Network, ..settings.clone() }, true, progress).await? {
+                        if let Attempt::Done(net, Some(prior)) = self.attempt(cloud, &Settings { method: Method::Network, ..settings.clone() }, first.is_some(), progress).await? {
                             rec = if tuned > prior { Reconstruction { notices: [vec![crate::mesh::trim::reach_notice(tuned, prior)], net.notices].concat(), ..net } } else { rec };
                             rec.timings.push(("the network's mesh", now() - t));
                         }
@@ -238,7 +239,10 @@ impl Engine {
         // Fitted and trimmed in the unit cube, against the points the network saw.
         let opened = open_far.then(|| Settings { trim: Some(crate::mesh::trim::DEFAULT_TRIM), ..settings.clone() });
         let finished = crate::mesh::finish::finish(&mut mesh, &points, opened.as_ref().unwrap_or(settings), crate::mesh::fit::Fitted::object(plan.poisson), one_sided, None, &mut notices, &mut timings);
-        let reach = one_sided.then(|| crate::mesh::trim::reach(&mesh, &points));
+        // What the guard in `reconstruct` compares, wherever the field's level set is the
+        // surface we chose: a scan the Poisson surface ballooned over, or a cloud too small for it.
+        let guarded = one_sided || (settings.surface == Surface::Auto && !plan.poisson);
+        let reach = guarded.then(|| crate::mesh::trim::reach(&mesh, &points));
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }
