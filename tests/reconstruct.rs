@@ -604,23 +604,32 @@ fn an_open_shell_loses_the_fill_between_its_sheets() {
     assert!(e_auto < 0.5 * e_field, "{e_auto} vs {e_field}");
 }
 
+/// The guard against the prior on the shell fixture `name` (tests/data/shells): nkrr's run is
+/// the network's mesh and says why (its notices returned), and the tuned field's own mesh
+/// (`--surface field`: what was asked for, no guard) leaves the points farther than it.
+fn gives_way_to_the_network(name: &str) -> Vec<String> {
+    let path = common::repo_root().join("tests/data/shells").join(name);
+    let cloud = nkrr::io::ply::read_ply(&std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap().cloud;
+    let nkrr_settings = Settings { method: Method::Nkrr, ..settings() };
+    let nkrr_run = reconstruct(&cloud, &nkrr_settings);
+    let network = reconstruct(&cloud, &settings());
+    assert!(nkrr_run.notices.iter().any(|n| n.contains("farther from the points than the network's")), "{name}: {:?}", nkrr_run.notices);
+    assert_eq!((&nkrr_run.mesh.indices, &nkrr_run.mesh.positions), (&network.mesh.indices, &network.mesh.positions), "{name}: the network's mesh");
+    let tuned = reconstruct(&cloud, &Settings { surface: Surface::Field, ..nkrr_settings });
+    assert!(tuned.tuning.is_some() && !tuned.notices.iter().any(|n| n.contains("than the network's")), "{name}: {:?}", tuned.notices);
+    let reach = |m: &Mesh| nkrr::mesh::trim::reach(m, &cloud.positions);
+    assert!(reach(&tuned.mesh) > reach(&network.mesh), "{name}: {} vs {}", reach(&tuned.mesh), reach(&network.mesh));
+    nkrr_run.notices
+}
+
 /// Issue 26's bound, on an open box whose sheets the tuned field thins through (holes in its
 /// walls, the points farther from its mesh than from the network's; tests/data/shells): the
 /// run keeps the network's mesh and says why, so nkrr is the network alone there, not worse.
 #[test]
 fn a_tuned_field_that_thins_a_sheet_through_gives_way_to_the_network() {
-    let path = common::repo_root().join("tests/data/shells/crate-3k.ply");
-    let cloud = nkrr::io::ply::read_ply(&std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap().cloud;
-    let nkrr_settings = Settings { method: Method::Nkrr, ..settings() };
-    let nkrr_run = reconstruct(&cloud, &nkrr_settings);
-    let network = reconstruct(&cloud, &settings());
-    assert!(nkrr_run.notices.iter().any(|n| n.contains("far from every point")), "{:?}", nkrr_run.notices);
-    assert!(nkrr_run.notices.iter().any(|n| n.contains("farther from the points than the network's")), "{:?}", nkrr_run.notices);
-    assert_eq!((&nkrr_run.mesh.indices, &nkrr_run.mesh.positions), (&network.mesh.indices, &network.mesh.positions), "the network's mesh");
-    // The tuned field's own mesh (--surface field: no balloon, no guard) is the farther one.
-    let tuned = reconstruct(&cloud, &Settings { surface: Surface::Field, ..nkrr_settings });
-    let reach = |m: &Mesh| nkrr::mesh::trim::reach(m, &cloud.positions);
-    assert!(reach(&tuned.mesh) > reach(&network.mesh), "{} vs {}", reach(&tuned.mesh), reach(&network.mesh));
+    let notices = gives_way_to_the_network("crate-3k.ply");
+    // At 3k points the Poisson surface ballooned first (its notice stays) and fell back to the field.
+    assert!(notices.iter().any(|n| n.contains("far from every point")), "{notices:?}");
 }
 
 /// Below 2,000 points the field's level set is the surface (no Poisson solve, no balloon), and
@@ -629,18 +638,7 @@ fn a_tuned_field_that_thins_a_sheet_through_gives_way_to_the_network() {
 /// resolution 128), so the network's mesh is the result, said in a notice.
 #[test]
 fn a_sparse_shell_whose_tuned_field_leaves_the_points_gives_way_to_the_network() {
-    let path = common::repo_root().join("tests/data/shells/crate-1k.ply");
-    let cloud = nkrr::io::ply::read_ply(&std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap().cloud;
-    let nkrr_settings = Settings { method: Method::Nkrr, ..settings() };
-    let nkrr_run = reconstruct(&cloud, &nkrr_settings);
-    let network = reconstruct(&cloud, &settings());
-    assert!(nkrr_run.notices.iter().any(|n| n.contains("farther from the points than the network's")), "{:?}", nkrr_run.notices);
-    assert_eq!((&nkrr_run.mesh.indices, &nkrr_run.mesh.positions), (&network.mesh.indices, &network.mesh.positions), "the network's mesh");
-    // Asked for the field surface, the tuned field's own mesh is the result, the farther one.
-    let tuned = reconstruct(&cloud, &Settings { surface: Surface::Field, ..nkrr_settings });
-    assert!(tuned.tuning.is_some() && !tuned.notices.iter().any(|n| n.contains("than the network's")), "{:?}", tuned.notices);
-    let reach = |m: &Mesh| nkrr::mesh::trim::reach(m, &cloud.positions);
-    assert!(reach(&tuned.mesh) > reach(&network.mesh), "{} vs {}", reach(&tuned.mesh), reach(&network.mesh));
+    gives_way_to_the_network("crate-1k.ply");
 }
 
 /// Meshing progress moves with the work done (issue 17): the evaluations reported never run
