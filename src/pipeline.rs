@@ -8,6 +8,7 @@ use std::cell::RefCell;
 use crate::cloud::{subsample, Normalization, PointCloud};
 use crate::field::{self, Field};
 use crate::gpu::{now, Gpu};
+use crate::mesh::finish::Closure;
 use crate::mesh::{extract_gpu_async, ExtractError, ExtractOptions, FieldError};
 use crate::net::{GpuNet, Weights};
 use crate::plan::{DeviceFacts, MemoryPlan};
@@ -238,11 +239,12 @@ impl Engine {
         let mut mesh = extraction.mesh;
         // Fitted and trimmed in the unit cube, against the points the network saw.
         let opened = open_far.then(|| Settings { trim: Some(crate::mesh::trim::DEFAULT_TRIM), ..settings.clone() });
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, opened.as_ref().unwrap_or(settings), crate::mesh::fit::Fitted::object(plan.poisson), one_sided, None, &mut notices, &mut timings);
-        // What the guard in `reconstruct` compares, wherever the field's level set is the
-        // surface we chose: a scan the Poisson surface ballooned over, or a cloud too small for it.
-        let guarded = one_sided || (settings.surface == Surface::Auto && !plan.poisson);
-        let reach = guarded.then(|| crate::mesh::trim::reach(&mesh, &points));
+        // Where the field's level set is the surface we chose (a scan the Poisson surface
+        // ballooned over, a cloud too small for it), an open shell's fill may go, and the guard
+        // in `reconstruct` compares the points' distance to the mesh with the network's.
+        let closure = if one_sided { Closure::OneSided } else if settings.surface == Surface::Auto && !plan.poisson { Closure::Sparse } else { Closure::Keep };
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, opened.as_ref().unwrap_or(settings), crate::mesh::fit::Fitted::object(plan.poisson), closure, None, &mut notices, &mut timings);
+        let reach = (closure != Closure::Keep).then(|| crate::mesh::trim::reach(&mesh, &points));
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }

@@ -527,7 +527,7 @@ pub async fn reconstruct(
     let sheet_gap = (0.5 * tiles.cell) as f32;
     // A scene's own fit (mesh::fit::Fitted::Scene): the tangent planes' noise gate is set in the
     // unit cube objects are fitted in, not in a scene's metres.
-    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, crate::mesh::fit::Fitted::Scene, false, Some(sheet_gap), &mut notices, &mut timings);
+    let finished = crate::mesh::finish::finish(&mut mesh, &cloud.positions, &finish, crate::mesh::fit::Fitted::Scene, crate::mesh::finish::Closure::Keep, Some(sheet_gap), &mut notices, &mut timings);
     if settings.colors && cloud.colors.is_some() {
         crate::mesh::colour::transfer(&mut mesh, cloud, crate::mesh::colour::DEFAULT_K);
     }

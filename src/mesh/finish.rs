@@ -6,7 +6,7 @@
 use super::fit::{fit_cloud, FitReport, Fitted};
 use super::sheets::single_layer;
 use super::simplify::{simplify, SimplifyReport, Target};
-use super::trim::{trim, trim_between_sheets, TrimReport, BETWEEN_SHEETS_DEPTH, DEFAULT_TRIM};
+use super::trim::{trim, trim_between_sheets, TrimReport, BETWEEN_SHEETS_DEPTH, DEFAULT_TRIM, SPARSE_BETWEEN_SHEETS_SHARE};
 use super::types::Mesh;
 use crate::gpu::now;
 use crate::settings::Settings;
@@ -18,27 +18,40 @@ pub struct Finished {
     pub simplify: Option<SimplifyReport>,
 }
 
+/// What the finish may take of a closed surface that no trim was asked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Closure {
+    /// It stays whole: a Poisson surface kept, a scene, the field's surface asked for.
+    Keep,
+    /// The scan saw one side of the object or is an open shell (the Poisson surface ballooned):
+    /// pieces that no point is near are the prior's guess of the rest and stay
+    /// ([`super::remove_unsupported_components`]); what lies far from the points deep inside
+    /// their hull goes ([`trim_between_sheets`]).
+    OneSided,
+    /// The field's level set of a cloud too small for the Poisson surface, which cannot tell an
+    /// open shell: the fill between sheets goes only where it is a large part of the mesh
+    /// ([`SPARSE_BETWEEN_SHEETS_SHARE`]).
+    Sparse,
+}
+
 /// Finishes `mesh` against `points` as `settings` ask, adding what it says to `notices` and
 /// each step's seconds to `timings`. `fitted`: what the mesh is, which decides the fit ([`Fitted`]).
 /// `sheet_gap`: a scene's (with [`Settings::one_layer`]), the most two coincident layers lie
-/// apart after the fit ([`single_layer`]); objects pass None. `one_sided`: the scan saw one side
-/// of the object or is an open shell (the Poisson surface ballooned), so pieces that no point is
-/// near are the prior's guess of the rest and stay ([`super::remove_unsupported_components`]),
-/// and, unless a trim was asked for, what lies far from the points deep inside their hull goes
-/// ([`trim_between_sheets`]).
+/// apart after the fit ([`single_layer`]); objects pass None. `closure`: what of the closed
+/// surface may be opened where no trim was asked for ([`Closure`]).
 #[allow(clippy::too_many_arguments)]
 pub fn finish(
     mesh: &mut Mesh,
     points: &[[f32; 3]],
     settings: &Settings,
     fitted: Fitted,
-    one_sided: bool,
+    closure: Closure,
     sheet_gap: Option<f32>,
     notices: &mut Vec<String>,
     timings: &mut Vec<(&'static str, f64)>,
 ) -> Finished {
     if let Some(share) = settings.min_support {
-        let r = super::remove_unsupported_components(mesh, points, share as f32, one_sided);
+        let r = super::remove_unsupported_components(mesh, points, share as f32, closure == Closure::OneSided);
         notices.extend(r.unsupported_notice(share));
     }
     let fit = settings.fit.then(|| {
@@ -62,10 +75,11 @@ pub fn finish(
             notices.push(r.notice(factor));
             Some(r)
         }
-        // The Poisson surface ballooned: a one-sided scan's closure stays, an open shell's fill goes.
-        None if one_sided => {
+        // A one-sided scan's closure stays, an open shell's fill goes.
+        None if closure != Closure::Keep => {
             let (factor, depth) = (DEFAULT_TRIM, BETWEEN_SHEETS_DEPTH);
-            let r = trim_between_sheets(mesh, points, factor, depth);
+            let min_share = if closure == Closure::Sparse { SPARSE_BETWEEN_SHEETS_SHARE } else { 0.0 };
+            let r = trim_between_sheets(mesh, points, factor, depth, min_share);
             notices.extend(r.between_sheets_notice(factor, depth));
             Some(r)
         }
