@@ -772,19 +772,7 @@ pub const FAR_SPACINGS: f32 = 5.0;
 /// the mean spacing of `points` from the nearest of them; 0 when there is no spacing to measure.
 pub fn far_share(mesh: &crate::mesh::Mesh, points: &[[f32; 3]]) -> f64 {
     let near = crate::mesh::trim::near_triangles(&mesh.positions, &mesh.indices, points, FAR_SPACINGS);
-    let Some(keep) = near.keep else { return 0.0 };
-    let (mut far, mut all) = (0.0, 0.0);
-    for (t, &kept) in mesh.indices.chunks_exact(3).zip(&keep) {
-        let [a, b, c] = [t[0], t[1], t[2]].map(|v| mesh.positions[v as usize].map(f64::from));
-        let (u, v) = ([0, 1, 2].map(|k| b[k] - a[k]), [0, 1, 2].map(|k| c[k] - a[k]));
-        let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-        let area = 0.5 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-        all += area;
-        if !kept {
-            far += area;
-        }
-    }
-    if all > 0.0 { far / all } else { 0.0 }
+    near.keep.map_or(0.0, |keep| crate::mesh::trim::dropped_area_share(mesh, &keep))
 }
 
 fn distance(a: [f32; 3], b: [f32; 3]) -> f64 {

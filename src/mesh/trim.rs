@@ -160,31 +160,34 @@ pub fn trim_between_sheets(mesh: &mut Mesh, points: &[[f32; 3]], factor: f32, de
             far.iter().zip(shallow).for_each(|(&t, stays)| keep[t] = stays);
         }
     }
-    let share = near.keep.as_ref().map_or(0.0, |keep| area_share(mesh, keep, false));
+    // Too small a share of the mesh to be an open shell's fill: nothing goes.
+    let share = near.keep.as_ref().map_or(0.0, |keep| dropped_area_share(mesh, keep) as f32);
     if share < min_share {
         near.keep = None;
     }
     TrimReport { area_share: if near.keep.is_some() { share } else { 0.0 }, ..drop_far(mesh, near) }
 }
 
-/// The share of `mesh`'s area in the triangles `t` with `keep[t] == which` (0 for no area).
-fn area_share(mesh: &Mesh, keep: &[bool], which: bool) -> f32 {
+/// The share of `mesh`'s area in the triangles `t` that `keep[t]` drops (0 for no area;
+/// triangles whose indices are out of range count for nothing): what a trim by [`NearTriangles`]
+/// would take, and the Poisson surface's far share ([`crate::poisson::far_share`]).
+pub fn dropped_area_share(mesh: &Mesh, keep: &[bool]) -> f64 {
     let n = mesh.positions.len();
-    let (mut part, mut all) = (0.0f64, 0.0f64);
-    for (t, &k) in mesh.indices.chunks_exact(3).zip(keep) {
+    let (mut dropped, mut all) = (0.0f64, 0.0f64);
+    for (t, &kept) in mesh.indices.chunks_exact(3).zip(keep) {
         if t.iter().any(|&i| i as usize >= n) {
             continue;
         }
         let [a, b, c] = [t[0], t[1], t[2]].map(|i| mesh.positions[i as usize].map(f64::from));
         let (u, v) = ([0, 1, 2].map(|k| b[k] - a[k]), [0, 1, 2].map(|k| c[k] - a[k]));
-        let cross = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-        let area = 0.5 * (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
+        let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let area = 0.5 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
         all += area;
-        if k == which {
-            part += area;
+        if !kept {
+            dropped += area;
         }
     }
-    if all > 0.0 { (part / all) as f32 } else { 0.0 }
+    if all > 0.0 { dropped / all } else { 0.0 }
 }
 
 /// Which triangles [`trim`] keeps, without changing the mesh (the page's live trim uses it too).
