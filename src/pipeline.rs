@@ -43,8 +43,8 @@ pub enum Stage {
 /// field instead and the seconds that pass took.
 enum Attempt {
     /// The result and, where the field's level set is the surface under `--surface auto` (a
-    /// scan the Poisson surface ballooned over, a cloud under 2,000 points), the points' mean
-    /// distance to its mesh ([`crate::mesh::trim::reach`], in the unit cube).
+    /// scan the Poisson surface ballooned over, a cloud under 2,000 points), how far its mesh
+    /// lies from the points ([`Closure::distance`], in the unit cube).
     Done(Reconstruction, Option<f64>),
     FieldInstead { notice: String, seconds: f64 },
 }
@@ -79,14 +79,14 @@ impl Engine {
         loop {
             // The second attempt knows the scan saw one side (`first` holds the balloon's notice).
             match self.attempt(cloud, &settings, first.is_some(), progress).await? {
-                Attempt::Done(mut rec, reach) => {
-                    // Never worse than the prior on a shell: where the tuned field's mesh leaves
-                    // the points farther than the network's (holes in a sheet it thinned), the
-                    // network's mesh (docs/poisson.md, "Open shells").
-                    if let (Some(tuned), Method::Nkrr) = (reach, settings.method) {
+                Attempt::Done(mut rec, distance) => {
+                    // Never worse than the prior on a shell: where the tuned field's mesh lies
+                    // farther from the points than the network's (holes in a sheet it thinned, a
+                    // fill no point carries), the network's mesh (docs/poisson.md, "Open shells").
+                    if let (Some(tuned), Method::Nkrr) = (distance, settings.method) {
                         let t = now();
                         if let Attempt::Done(net, Some(prior)) = self.attempt(cloud, &Settings { method: Method::Network, ..settings.clone() }, first.is_some(), progress).await? {
-                            rec = if tuned > prior { Reconstruction { notices: [vec![crate::mesh::trim::reach_notice(tuned, prior)], net.notices].concat(), ..net } } else { rec };
+                            rec = if tuned > prior { Reconstruction { notices: [vec![crate::mesh::trim::farther_notice(tuned, prior)], net.notices].concat(), ..net } } else { rec };
                             rec.timings.push(("the network's mesh", now() - t));
                         }
                     }
@@ -244,7 +244,7 @@ impl Engine {
         // in `reconstruct` compares the points' distance to the mesh with the network's.
         let closure = if one_sided { Closure::OneSided } else if settings.surface == Surface::Auto && !plan.poisson { Closure::Sparse } else { Closure::Keep };
         let finished = crate::mesh::finish::finish(&mut mesh, &points, opened.as_ref().unwrap_or(settings), crate::mesh::fit::Fitted::object(plan.poisson), closure, None, &mut notices, &mut timings);
-        let reach = (closure != Closure::Keep).then(|| crate::mesh::trim::reach(&mesh, &points));
+        let distance = closure.distance(&mesh, &points);
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }
@@ -258,6 +258,6 @@ impl Engine {
         let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
         (progress.borrow_mut())(&Stage::Done);
         let crate::mesh::finish::Finished { fit, trim, simplify } = finished;
-        Ok(Attempt::Done(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None }, reach))
+        Ok(Attempt::Done(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None }, distance))
     }
 }

@@ -10,6 +10,7 @@ use std::process::Command;
 
 use gltf::json::Value;
 use nkrr::io::gltf::{write_glb, GlbOptions};
+use nkrr::mesh::finish::Closure;
 use nkrr::mesh::Mesh;
 use nkrr::pipeline::{Engine, Reconstruction};
 use nkrr::settings::{Method, Settings, Surface};
@@ -614,8 +615,9 @@ fn an_open_shell_loses_the_fill_between_its_sheets() {
 
 /// The guard against the prior on the shell fixture `name` (tests/data/shells): nkrr's run is
 /// the network's mesh and says why (its notices returned), and the tuned field's own mesh
-/// (`--surface field`: what was asked for, no guard) leaves the points farther than it.
-fn gives_way_to_the_network(name: &str) -> Vec<String> {
+/// (`--surface field`: what was asked for, no guard) lies farther from the points than it, as
+/// `closure` measures it (the run's: one-sided after a balloon, sparse below 2,000 points).
+fn gives_way_to_the_network(name: &str, closure: Closure) -> Vec<String> {
     let path = common::repo_root().join("tests/data/shells").join(name);
     let cloud = nkrr::io::ply::read_ply(&std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap().cloud;
     let nkrr_settings = Settings { method: Method::Nkrr, ..settings() };
@@ -625,8 +627,8 @@ fn gives_way_to_the_network(name: &str) -> Vec<String> {
     assert_eq!((&nkrr_run.mesh.indices, &nkrr_run.mesh.positions), (&network.mesh.indices, &network.mesh.positions), "{name}: the network's mesh");
     let tuned = reconstruct(&cloud, &Settings { surface: Surface::Field, ..nkrr_settings });
     assert!(tuned.tuning.is_some() && !tuned.notices.iter().any(|n| n.contains("than the network's")), "{name}: {:?}", tuned.notices);
-    let reach = |m: &Mesh| nkrr::mesh::trim::reach(m, &cloud.positions);
-    assert!(reach(&tuned.mesh) > reach(&network.mesh), "{name}: {} vs {}", reach(&tuned.mesh), reach(&network.mesh));
+    let far = |m: &Mesh| closure.distance(m, &cloud.positions).unwrap();
+    assert!(far(&tuned.mesh) > far(&network.mesh), "{name}: {} vs {}", far(&tuned.mesh), far(&network.mesh));
     nkrr_run.notices
 }
 
@@ -635,7 +637,7 @@ fn gives_way_to_the_network(name: &str) -> Vec<String> {
 /// run keeps the network's mesh and says why, so nkrr is the network alone there, not worse.
 #[test]
 fn a_tuned_field_that_thins_a_sheet_through_gives_way_to_the_network() {
-    let notices = gives_way_to_the_network("crate-3k.ply");
+    let notices = gives_way_to_the_network("crate-3k.ply", Closure::OneSided);
     // At 3k points the Poisson surface ballooned first (its notice stays) and fell back to the field.
     assert!(notices.iter().any(|n| n.contains("far from every point")), "{notices:?}");
 }
@@ -646,7 +648,18 @@ fn a_tuned_field_that_thins_a_sheet_through_gives_way_to_the_network() {
 /// resolution 128), so the network's mesh is the result, said in a notice.
 #[test]
 fn a_sparse_shell_whose_tuned_field_leaves_the_points_gives_way_to_the_network() {
-    gives_way_to_the_network("crate-1k.ply");
+    gives_way_to_the_network("crate-1k.ply", Closure::Sparse);
+}
+
+/// Below 2,000 points the guard measures both ways: on 500 points of a cup whose walls are
+/// 1.9 % of its height (tests/data/shells), both fields fill the cup and the fill is opened,
+/// but the tuned field leaves foam inside that no point carries, nearer the points than the
+/// network's mesh (the points' side alone kept it: CD1 x100 2.10 against the network's 1.74 at
+/// resolution 64, 2.17 against 1.74 at 128). Its surface lies farther from them, so the
+/// network's mesh is the result, said in a notice.
+#[test]
+fn a_cup_the_tuned_field_fills_with_foam_gives_way_to_the_network() {
+    gives_way_to_the_network("cup015-500.ply", Closure::Sparse);
 }
 
 /// Meshing progress moves with the work done (issue 17): the evaluations reported never run

@@ -240,11 +240,44 @@ pub fn reach(mesh: &Mesh, points: &[[f32; 3]]) -> f64 {
     sums.iter().sum::<f64>() / points.len() as f64
 }
 
-/// What the run says when it keeps the network's mesh over the tuned field's ([`reach`]).
-pub fn reach_notice(tuned: f64, network: f64) -> String {
+/// The other way: the mean distance of `mesh`'s surface to the nearest of `points`,
+/// area-weighted over its triangles' centroids (0 for a mesh without triangles or no points).
+/// A fill that no point carries (a cup or a shell filled with foam, a lid) moves it by its share
+/// of the area.
+pub fn surface_distance(mesh: &Mesh, points: &[[f32; 3]]) -> f64 {
+    let p = &mesh.positions;
+    let triangles: Vec<[usize; 3]> =
+        mesh.indices.chunks_exact(3).map(|t| [t[0] as usize, t[1] as usize, t[2] as usize]).filter(|t| t.iter().all(|&i| i < p.len())).collect();
+    if triangles.is_empty() || points.is_empty() {
+        return 0.0;
+    }
+    let cloud = PointIndex::new(points);
+    // (area, area × distance) per chunk of triangles.
+    let sums = crate::par::map_ranges(triangles.len(), |range| {
+        let mut scratch = Vec::new();
+        let (mut area, mut weighted) = (0.0f64, 0.0f64);
+        for t in &triangles[range] {
+            let [a, b, c] = t.map(|i| glam::DVec3::from(p[i].map(f64::from)));
+            let w = 0.5 * (b - a).cross(c - a).length();
+            area += w;
+            weighted += w * cloud.nearest_distance(((a + b + c) / 3.0).as_vec3().to_array(), &mut scratch) as f64;
+        }
+        vec![(area, weighted)]
+    });
+    let (area, weighted) = sums.iter().fold((0.0, 0.0), |(a, w), &(x, y)| (a + x, w + y));
+    if area > 0.0 {
+        weighted / area
+    } else {
+        0.0
+    }
+}
+
+/// What the run says when it keeps the network's mesh over the tuned field's
+/// ([`super::finish::Closure::distance`]).
+pub fn farther_notice(tuned: f64, network: f64) -> String {
     format!(
-        "the tuned field's mesh came {:.0} % farther from the points than the network's (holes where it thinned a sheet): the network's mesh is kept \
-         (--method network makes it directly)",
+        "the tuned field's mesh lies {:.0} % farther from the points than the network's (holes where it thinned a sheet, or a fill no point \
+         carries): the network's mesh is kept (--method network makes it directly)",
         100.0 * (tuned / network - 1.0)
     )
 }
@@ -321,14 +354,40 @@ mod tests {
         assert_eq!(mesh, before);
     }
 
-    /// `reach`: the points' mean distance to the nearest vertex.
+    /// `reach`: the points' mean distance to the nearest vertex; `surface_distance`: the
+    /// mesh's area-weighted mean distance (at the centroids) to the nearest point.
     #[test]
-    fn reach_is_the_points_mean_distance_to_the_nearest_vertex() {
+    fn reach_and_surface_distance_are_the_two_sides() {
         let mesh = Mesh { positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], normals: vec![], colors: None, indices: vec![0, 1, 2] };
         let points = [[0.0, 0.0, 0.5], [1.0, 0.0, -0.25], [0.0, 1.0, 0.0]];
         assert!((reach(&mesh, &points) - 0.25).abs() < 1e-9);
-        assert_eq!(reach(&mesh, &[]), 0.0);
-        assert_eq!(reach(&Mesh::default(), &points), 0.0);
+        // The centroid (1/3, 1/3, 0) is nearest to the first point.
+        assert!((surface_distance(&mesh, &points) - (2.0f64 / 9.0 + 0.25).sqrt()).abs() < 1e-6, "{}", surface_distance(&mesh, &points));
+        for empty in [reach(&mesh, &[]), reach(&Mesh::default(), &points), surface_distance(&mesh, &[]), surface_distance(&Mesh::default(), &points)] {
+            assert_eq!(empty, 0.0);
+        }
+    }
+
+    /// A lid far from every point (a filled cup's) leaves the points' side as it was and moves
+    /// the mesh's side by its share of the area. Triangles are weighed by their area, not
+    /// counted.
+    #[test]
+    fn a_lid_no_point_carries_makes_the_mesh_farther() {
+        let points: Vec<[f32; 3]> = (0..=10).flat_map(|i| (0..=10).map(move |j| [i as f32 * 0.1, j as f32 * 0.1, 0.0])).collect();
+        let floor = Mesh { positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]], normals: vec![], colors: None, indices: vec![0, 1, 2, 0, 2, 3] };
+        let mut lidded = floor.clone();
+        lidded.positions.extend([[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [1.0, 1.0, 0.5], [0.0, 1.0, 0.5]]);
+        lidded.indices.extend([4, 5, 6, 4, 6, 7]);
+        assert_eq!(reach(&floor, &points), reach(&lidded, &points));
+        let (open, closed) = (surface_distance(&floor, &points), surface_distance(&lidded, &points));
+        assert!((closed - 0.5 * (open + 0.5)).abs() < 0.01, "{open} vs {closed}");
+        // Split one triangle of the floor into many small ones: the same surface, the same value.
+        let mut fine = floor.clone();
+        fine.indices.truncate(3);
+        let n = fine.positions.len() as u32;
+        fine.positions.push([1.0 / 3.0, 2.0 / 3.0, 0.0]);
+        fine.indices.extend([0, 2, n, 2, 3, n, 3, 0, n]);
+        assert!((surface_distance(&fine, &points) - open).abs() < 0.01, "{} vs {open}", surface_distance(&fine, &points));
     }
 
     /// Points on a bowl (the lower half of a unit sphere: a sheet, open at the top). A square
