@@ -36,6 +36,10 @@ pub enum Stage {
     /// [`Reconstruction::mesh`]), indices into this piece's own `positions`. The finish (last
     /// fit, trim, simplification) may still move or drop them.
     Meshed { positions: Vec<[f32; 3]>, indices: Vec<u32> },
+    /// The network's own field meshed and finished, to compare with the tuned field's mesh (the
+    /// guard in [`Engine::reconstruct`]); reported at each of that run's steps, in place of them.
+    Prior,
+    /// Once, when the result is ready.
     Done,
 }
 
@@ -85,7 +89,9 @@ impl Engine {
                     // fill no point carries), the network's mesh (docs/poisson.md, "Open shells").
                     if let (Some(tuned), Method::Nkrr) = (distance, settings.method) {
                         let t = now();
-                        if let Attempt::Done(net, Some(prior)) = self.attempt(cloud, &Settings { method: Method::Network, ..settings.clone() }, first.is_some(), progress).await? {
+                        // Its steps show as one stage: the bar and the words do not start over.
+                        let mut as_prior = |_: &Stage| progress(&Stage::Prior);
+                        if let Attempt::Done(net, Some(prior)) = self.attempt(cloud, &Settings { method: Method::Network, ..settings.clone() }, first.is_some(), &mut as_prior).await? {
                             rec = if tuned > prior { Reconstruction { notices: [vec![crate::mesh::trim::farther_notice(tuned, prior)], net.notices].concat(), ..net } } else { rec };
                             rec.timings.push(("the network's mesh", now() - t));
                         }
@@ -94,6 +100,7 @@ impl Engine {
                         rec.notices.insert(0, notice);
                         rec.timings.insert(0, ("poisson attempt", seconds));
                     }
+                    progress(&Stage::Done);
                     return Ok(rec);
                 }
                 // The Poisson surface ballooned (a one-sided scan): the whole run again on the
@@ -256,7 +263,6 @@ impl Engine {
         // Units last: every stage above works in the cloud's own coordinates (the network's
         // normalisation makes the scale irrelevant to it), and a similarity keeps normals.
         let origin = crate::units::to_metres(settings.units, &mut mesh.positions, cloud.origin);
-        (progress.borrow_mut())(&Stage::Done);
         let crate::mesh::finish::Finished { fit, trim, simplify } = finished;
         Ok(Attempt::Done(Reconstruction { mesh, origin, fit, trim, simplify, notices, warnings, extract: extraction.stats, tuning, timings, gpu_peaks: peaks.peaks, scene: None }, distance))
     }

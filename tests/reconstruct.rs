@@ -614,14 +614,27 @@ fn an_open_shell_loses_the_fill_between_its_sheets() {
 }
 
 /// The guard against the prior on the shell fixture `name` (tests/data/shells): nkrr's run is
-/// the network's mesh and says why (its notices returned), and the tuned field's own mesh
+/// the network's mesh and says why (its notices returned), its progress shows the network's run
+/// as one stage and is done once, and the tuned field's own mesh
 /// (`--surface field`: what was asked for, no guard) lies farther from the points than it, as
 /// `closure` measures it (the run's: one-sided after a balloon, sparse below 2,000 points).
 fn gives_way_to_the_network(name: &str, closure: Closure) -> Vec<String> {
     let path = common::repo_root().join("tests/data/shells").join(name);
     let cloud = nkrr::io::ply::read_ply(&std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap().cloud;
     let nkrr_settings = Settings { method: Method::Nkrr, ..settings() };
-    let nkrr_run = reconstruct(&cloud, &nkrr_settings);
+    let gpu = nkrr::gpu::Gpu::new_blocking().expect("a wgpu adapter (lavapipe will do)");
+    let engine = pollster::block_on(Engine::new(gpu)).unwrap();
+    let mut stages = Vec::new();
+    let nkrr_run = pollster::block_on(engine.reconstruct(&cloud, &nkrr_settings, &mut |s| {
+        stages.push(format!("{s:?}").split([' ', '{']).next().unwrap().to_string());
+        true
+    }))
+    .unwrap();
+    // The network's run shows as one stage after the tuned field's, and the run is done once, at
+    // the end: the page's bar and words do not start over.
+    let prior = stages.iter().position(|s| s == "Prior").unwrap_or_else(|| panic!("{name}: {stages:?}"));
+    assert!(stages[..prior].iter().any(|s| s == "Tuning") && stages[prior..stages.len() - 1].iter().all(|s| s == "Prior"), "{name}: {stages:?}");
+    assert_eq!((stages.last().map(String::as_str), stages.iter().filter(|s| *s == "Done").count()), (Some("Done"), 1), "{name}: {stages:?}");
     let network = reconstruct(&cloud, &settings());
     assert!(nkrr_run.notices.iter().any(|n| n.contains("farther from the points than the network's")), "{name}: {:?}", nkrr_run.notices);
     assert_eq!((&nkrr_run.mesh.indices, &nkrr_run.mesh.positions), (&network.mesh.indices, &network.mesh.positions), "{name}: the network's mesh");

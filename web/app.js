@@ -177,7 +177,7 @@ const reconstructor = new Reconstructor({ graceMs: CANCEL_GRACE_MS, threads: THR
 // field evaluations approach the typical count the event carries (MeshingSize::expected).
 const SHARES = {
   network: { features: [0, 0.15], meshing: [0.15, 0.9], surface: [0.9, 0.98], tiles: [0, 0.98] },
-  nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], meshing: [0.7, 0.9], surface: [0.9, 0.98], tiles: [0, 0.98] },
+  nkrr: { features: [0, 0.05], pairs: [0.05, 0.1], tuning: [0.1, 0.7], meshing: [0.7, 0.9], surface: [0.9, 0.98], prior: [0.9, 0.98], tiles: [0, 0.98] },
 };
 
 /** ", about m:ss left" in a stage whose steps cost about the same (tiles, tuning steps), from
@@ -205,6 +205,7 @@ function stageText(p, opts) {
     case 'pairs': return 'Sampling and labelling training pairs…';
     case 'tuning': return `Tuning: step ${p.step} of ${p.of}, loss ${p.loss.toPrecision(4)}${left(p, p.step, p.of, ' for the tuning')}`;
     case 'surface': return 'Solving the Poisson surface (normals signed by the field’s mesh)…';
+    case 'prior': return 'Meshing the network’s own field, to compare with the tuned field’s…';
     // Past the typical count the bar stays full (it cannot know the end): the words say why.
     case 'meshing': return `Meshing at ${opts.resolution}³: ${fmt.format(p.evaluated)} field evaluations${
       p.expected && p.evaluated > p.expected ? `, more than the usual ${fmt.format(p.expected)}: an intricate surface` : ''}`;

@@ -14,7 +14,7 @@
 // m, steps, removeSmall, units, trim, …: the same settings, ranges and defaults as the CLI's
 // flags, defined once in src/settings.rs; a value out of range rejects with a RangeError that
 // names it), and name (the glTF node's name).
-// Progress: onProgress({ stage: 'setup' | 'features' | 'pairs' | 'tuning' | 'surface' | 'meshing' | 'tiles' | 'done',
+// Progress: onProgress({ stage: 'setup' | 'features' | 'pairs' | 'tuning' | 'surface' | 'meshing' | 'prior' | 'tiles' | 'done',
 // step, of, loss, evaluated, expected, done }: meshing's evaluations so far and the typical count
 // at this resolution, which a run may pass; a scene's tiles done of `of`). Aborting the signal rejects at once with an AbortError; the
 // worker stops at its next step, or is replaced if it has not within `graceMs` (CPU-bound steps

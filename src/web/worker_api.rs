@@ -126,6 +126,7 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
                 ("meshing", vec![("evaluated", *evaluated as f64), ("expected", *expected as f64)])
             }
             Stage::Tile { done, of } => ("tiles", vec![("done", *done as f64), ("of", *of as f64)]),
+            Stage::Prior => ("prior", vec![]),
             Stage::Done => ("done", vec![]),
         };
         set(&p, "stage", stage);

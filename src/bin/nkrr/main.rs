@@ -311,6 +311,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
             Stage::Tile { done, of } => format!("tiles: {done} of {of}{}", left("tiles", *done, *of)),
             // Pieces of a scene's mesh are for viewers to show; the tile count says enough here.
             Stage::Meshed { .. } => return true,
+            Stage::Prior => "meshing the network's own field, to compare with the tuned field's".to_string(),
             Stage::Done => "done".to_string(),
         };
         if line != last {
