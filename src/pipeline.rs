@@ -82,16 +82,17 @@ impl Engine {
         let (mut settings, mut first) = (settings.clone(), None);
         loop {
             // The second attempt knows the scan saw one side (`first` holds the balloon's notice).
-            match self.attempt(cloud, &settings, first.is_some(), progress).await? {
+            // Only nkrr's run is compared with the network's (the guard below): only it measures.
+            match self.attempt(cloud, &settings, first.is_some(), settings.method == Method::Nkrr, progress).await? {
                 Attempt::Done(mut rec, distance) => {
                     // Never worse than the prior on a shell: where the tuned field's mesh lies
                     // farther from the points than the network's (holes in a sheet it thinned, a
                     // fill no point carries), the network's mesh (docs/poisson.md, "Open shells").
-                    if let (Some(tuned), Method::Nkrr) = (distance, settings.method) {
+                    if let Some(tuned) = distance {
                         let t = now();
                         // Its steps show as one stage: the bar and the words do not start over.
                         let mut as_prior = |_: &Stage| progress(&Stage::Prior);
-                        if let Attempt::Done(net, Some(prior)) = self.attempt(cloud, &Settings { method: Method::Network, ..settings.clone() }, first.is_some(), &mut as_prior).await? {
+                        if let Attempt::Done(net, Some(prior)) = self.attempt(cloud, &Settings { method: Method::Network, ..settings.clone() }, first.is_some(), true, &mut as_prior).await? {
                             rec = if tuned > prior { Reconstruction { notices: [vec![crate::mesh::trim::farther_notice(tuned, prior)], net.notices].concat(), ..net } } else { rec };
                             rec.timings.push(("the network's mesh", now() - t));
                         }
@@ -110,7 +111,9 @@ impl Engine {
         }
     }
 
-    async fn attempt(&self, cloud: &PointCloud, settings: &Settings, one_sided: bool, progress: &mut dyn FnMut(&Stage) -> bool) -> Result<Attempt, PipelineError> {
+    /// `measure`: the caller compares this run's mesh with another's, so where the field's level
+    /// set is the surface its distance to the points comes back ([`Closure::distance`]).
+    async fn attempt(&self, cloud: &PointCloud, settings: &Settings, one_sided: bool, measure: bool, progress: &mut dyn FnMut(&Stage) -> bool) -> Result<Attempt, PipelineError> {
         let t_all = now();
         let mut timings = Vec::new();
         let mut notices = Vec::new();
@@ -251,7 +254,7 @@ impl Engine {
         // in `reconstruct` compares how far its mesh and the network's lie from the points.
         let closure = if one_sided { Closure::OneSided } else if settings.surface == Surface::Auto && !plan.poisson { Closure::Sparse } else { Closure::Keep };
         let finished = crate::mesh::finish::finish(&mut mesh, &points, opened.as_ref().unwrap_or(settings), crate::mesh::fit::Fitted::object(plan.poisson), closure, None, &mut notices, &mut timings);
-        let distance = closure.distance(&mesh, &points);
+        let distance = if measure { closure.distance(&mesh, &points) } else { None };
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);
         }
