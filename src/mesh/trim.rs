@@ -172,22 +172,39 @@ pub fn trim_between_sheets(mesh: &mut Mesh, points: &[[f32; 3]], factor: f32, de
 /// triangles whose indices are out of range count for nothing): what a trim by [`NearTriangles`]
 /// would take, and the Poisson surface's far share ([`crate::poisson::far_share`]).
 pub fn dropped_area_share(mesh: &Mesh, keep: &[bool]) -> f64 {
-    let n = mesh.positions.len();
     let (mut dropped, mut all) = (0.0f64, 0.0f64);
     for (t, &kept) in mesh.indices.chunks_exact(3).zip(keep) {
-        if t.iter().any(|&i| i as usize >= n) {
-            continue;
-        }
-        let [a, b, c] = [t[0], t[1], t[2]].map(|i| mesh.positions[i as usize].map(f64::from));
-        let (u, v) = ([0, 1, 2].map(|k| b[k] - a[k]), [0, 1, 2].map(|k| c[k] - a[k]));
-        let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-        let area = 0.5 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
+        let Some(area) = triangle_area(&mesh.positions, t) else { continue };
         all += area;
         if !kept {
             dropped += area;
         }
     }
     if all > 0.0 { dropped / all } else { 0.0 }
+}
+
+/// The area of triangle `t` (three indices into `positions`), in f64; None when an index is out
+/// of range.
+fn triangle_area(positions: &[[f32; 3]], t: &[u32]) -> Option<f64> {
+    let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions.get(i as usize).map(|p| glam::DVec3::from(p.map(f64::from))));
+    Some(0.5 * (b? - a?).cross(c? - a?).length())
+}
+
+/// Per triangle of `indices` (into `positions`), its centroid's distance to the nearest point of
+/// `index`; None where an index is out of range. The triangles split over the cores.
+fn centroid_distances(positions: &[[f32; 3]], indices: &[u32], index: &PointIndex) -> Vec<Option<f32>> {
+    let triangles: Vec<&[u32]> = indices.chunks_exact(3).collect();
+    crate::par::map_ranges(triangles.len(), |range| {
+        let mut scratch = Vec::new();
+        triangles[range]
+            .iter()
+            .map(|t| {
+                let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions.get(i as usize).copied());
+                let (a, b, c) = (a?, b?, c?);
+                Some(index.nearest_distance([0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0), &mut scratch))
+            })
+            .collect()
+    })
 }
 
 /// Which triangles [`trim`] keeps, without changing the mesh (the page's live trim uses it too).
@@ -207,20 +224,7 @@ pub fn near_triangles(positions: &[[f32; 3]], indices: &[u32], points: &[[f32; 3
     if !(threshold > 0.0 && threshold.is_finite()) {
         return NearTriangles { spacing, threshold, keep: None };
     }
-    let index = PointIndex::new(points);
-    let n = positions.len();
-    let mut scratch = Vec::new();
-    let keep = indices
-        .chunks_exact(3)
-        .map(|t| {
-            if t.iter().any(|&i| i as usize >= n) {
-                return false;
-            }
-            let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions[i as usize]);
-            let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
-            index.nearest_distance(centroid, &mut scratch) <= threshold
-        })
-        .collect();
+    let keep = centroid_distances(positions, indices, &PointIndex::new(points)).into_iter().map(|d| d.is_some_and(|d| d <= threshold)).collect();
     NearTriangles { spacing, threshold, keep: Some(keep) }
 }
 
@@ -245,26 +249,17 @@ pub fn reach(mesh: &Mesh, points: &[[f32; 3]]) -> f64 {
 /// A fill that no point carries (a cup or a shell filled with foam, a lid) moves it by its share
 /// of the area.
 pub fn surface_distance(mesh: &Mesh, points: &[[f32; 3]]) -> f64 {
-    let p = &mesh.positions;
-    let triangles: Vec<[usize; 3]> =
-        mesh.indices.chunks_exact(3).map(|t| [t[0] as usize, t[1] as usize, t[2] as usize]).filter(|t| t.iter().all(|&i| i < p.len())).collect();
-    if triangles.is_empty() || points.is_empty() {
+    if points.is_empty() {
         return 0.0;
     }
-    let cloud = PointIndex::new(points);
-    // (area, area × distance) per chunk of triangles.
-    let sums = crate::par::map_ranges(triangles.len(), |range| {
-        let mut scratch = Vec::new();
-        let (mut area, mut weighted) = (0.0f64, 0.0f64);
-        for t in &triangles[range] {
-            let [a, b, c] = t.map(|i| glam::DVec3::from(p[i].map(f64::from)));
-            let w = 0.5 * (b - a).cross(c - a).length();
+    let distances = centroid_distances(&mesh.positions, &mesh.indices, &PointIndex::new(points));
+    let (mut area, mut weighted) = (0.0f64, 0.0f64);
+    for (t, d) in mesh.indices.chunks_exact(3).zip(distances) {
+        if let (Some(w), Some(d)) = (triangle_area(&mesh.positions, t), d) {
             area += w;
-            weighted += w * cloud.nearest_distance(((a + b + c) / 3.0).as_vec3().to_array(), &mut scratch) as f64;
+            weighted += w * d as f64;
         }
-        vec![(area, weighted)]
-    });
-    let (area, weighted) = sums.iter().fold((0.0, 0.0), |(a, w), &(x, y)| (a + x, w + y));
+    }
     if area > 0.0 {
         weighted / area
     } else {
