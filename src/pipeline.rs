@@ -47,7 +47,7 @@ pub enum Stage {
 /// field instead and the seconds that pass took.
 enum Attempt {
     /// The result and, where the field's level set is the surface under `--surface auto` (a
-    /// scan the Poisson surface ballooned over, a cloud under 2,000 points), how far its mesh
+    /// scan the Poisson surface ballooned over, a cloud under 1,000 points), how far its mesh
     /// lies from the points ([`Closure::distance`], in the unit cube).
     Done(Reconstruction, Option<f64>),
     FieldInstead { notice: String, seconds: f64 },

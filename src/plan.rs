@@ -88,10 +88,16 @@ pub struct MemoryPlan {
     pub decisions: Vec<String>,
 }
 
-/// Points from which `--surface auto` meshes a screened Poisson solve oriented by the field:
-/// at 3k and 10k points it came closer than the field's level set on the tuning shapes, at 500
-/// it did not (docs/results.md, Lever 9).
-pub const POISSON_POINTS: usize = 2000;
+/// Points from which `--surface auto` meshes a screened Poisson solve oriented by the field.
+/// First 2,000, between the sizes measured then (3k and 10k closer than the field's level set on
+/// the tuning shapes, 500 not: docs/results.md, Lever 9). Measured again on 2026-12-05 with the
+/// Poisson surface as it is now, on the eval clouds of all six shapes (mean CD1 x100, the field
+/// as `auto` made it -> the Poisson surface): 1,500 points 0.511 -> 0.442 and 1k 0.558 -> 0.501,
+/// lower on every shape at both; 500 0.691 -> 0.687, mixed (fandisk and spot +0.05, bunny
+/// -0.09), so 500 keeps the field. On clouds whose density falls 55x along the object it was
+/// the sparse end that the field lost: 1k 1.004 -> 0.788, 1,500 0.743 -> 0.616 (docs/poisson.md,
+/// "From 1,000 points").
+pub const POISSON_POINTS: usize = 1000;
 
 /// Whether a cloud of `n` points (those the network sees) is meshed through a Poisson solve, and
 /// the sentence that says what of it differs from what was asked (a mesh finer than the solve's

@@ -721,7 +721,7 @@ fn contradicted(solution: &Solution, points: &[[f32; 3]], normals: &[[f32; 3]]) 
 }
 
 /// The share of a Poisson surface's area that may lie far from every point (farther than
-/// [`FAR_SPACINGS`] × the mean point spacing) before `--surface auto` keeps the field's level set
+/// [`far_spacings`] × the point spacing) before `--surface auto` keeps the field's level set
 /// instead. Where a scan saw one side of an object (or a sheet), the field's mesh is a thin
 /// shell around the points whose nearest vertex signs normals from either side, and the solve
 /// balloons over what was never seen; the field closes it with the prior's guess instead.
@@ -791,7 +791,7 @@ impl Balloon {
         }
         let open = trim.is_none();
         let opened = if open {
-            format!(" and opened where it is farther than {} mean point spacings from them (--trim), as neither closure is the scan's", crate::mesh::trim::DEFAULT_TRIM)
+            format!(" and opened where it is farther than {} point spacings from them (--trim), as neither closure is the scan's", crate::mesh::trim::DEFAULT_TRIM)
         } else {
             String::new()
         };
@@ -804,13 +804,31 @@ impl Balloon {
     }
 }
 
-/// Far, for [`far_share`]: this many mean point spacings.
+/// Far, for [`far_share`]: this many point spacings ([`crate::mesh::trim::LocalSpacing`]) from
+/// [`FAR_FULL_POINTS`] points up.
 pub const FAR_SPACINGS: f32 = 5.0;
 
-/// The share of `mesh`'s area (by its triangles' centroids) farther than [`FAR_SPACINGS`] ×
-/// the mean spacing of `points` from the nearest of them; 0 when there is no spacing to measure.
+/// Below this many points "far" is [`FAR_SPACINGS`] scaled by √(points / this), at least 3
+/// spacings ([`far_spacings`]): the same distance in the object's own size, since the spacing
+/// grows as the points thin. A lid over a cup's opening lies as far from the rim as the opening
+/// is wide, and counted in spacings it came closer as the points thinned: cups of
+/// `scripts/thin_clouds.py` put 11.6 % of their Poisson surface beyond 5 spacings at 3k, 6.6-9 %
+/// at 1k and 1,500 points, under [`MAX_FAR_SHARE`], and the solid cup with its lid was kept
+/// (CD1 x100 2.1-2.3, against the field's 0.9-1.45) once the Poisson surface was tried from 1,000
+/// points (2026-12-05; [`crate::plan::POISSON_POINTS`]).
+pub const FAR_FULL_POINTS: usize = 3000;
+
+/// [`FAR_SPACINGS`] for a cloud of `points` points ([`FAR_FULL_POINTS`]).
+pub fn far_spacings(points: usize) -> f32 {
+    let scale = (points as f32 / FAR_FULL_POINTS as f32).sqrt().min(1.0);
+    (FAR_SPACINGS * scale).max(3.0)
+}
+
+/// The share of `mesh`'s area (by its triangles' centroids) farther than [`far_spacings`] ×
+/// the spacing of `points` ([`crate::mesh::trim::LocalSpacing`]) from the nearest of them; 0
+/// when there is no spacing to measure.
 pub fn far_share(mesh: &crate::mesh::Mesh, points: &[[f32; 3]]) -> f64 {
-    let near = crate::mesh::trim::near_triangles(&mesh.positions, &mesh.indices, points, FAR_SPACINGS);
+    let near = crate::mesh::trim::near_triangles(&mesh.positions, &mesh.indices, points, far_spacings(points.len()));
     near.keep.map_or(0.0, |keep| crate::mesh::trim::dropped_area_share(mesh, &keep))
 }
 

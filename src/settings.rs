@@ -443,7 +443,7 @@ pub static TABLE: &[Setting] = &[
         key: "surface",
         flag: "--surface",
         label: "Surface",
-        help: "the mesh from the field's level set, or from a screened Poisson solve through the points with normals the field orients (closer on clean scans; auto: Poisson from 2000 points up)",
+        help: "the mesh from the field's level set, or from a screened Poisson solve through the points with normals the field orients (closer on clean scans; auto: Poisson from 1000 points up)",
         kind: Kind::Choice(&[("auto", "auto"), ("field", "the field's level set"), ("poisson", "screened Poisson, oriented by the field")]),
         default: Value::Choice("auto"),
         get: |s| Value::Choice(match s.surface {
@@ -586,7 +586,7 @@ pub static TABLE: &[Setting] = &[
         key: "trim",
         flag: "--trim",
         label: "Trim to the scan",
-        help: "open the surface where there are no points: drop triangles farther than this many mean point spacings from them",
+        help: "open the surface where there are no points: drop triangles farther than this many point spacings from them (the cloud's mean, wider where the points are sparser)",
         kind: Kind::Float { min: 0.1, max: 1000.0 },
         default: Value::Off,
         can_be_off: true,

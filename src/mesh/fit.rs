@@ -124,7 +124,7 @@ pub enum Fitted {
     /// An object's Poisson surface, smooth between the points already: [`Local::Tangents`], the
     /// moves averaged ([`FitOptions::for_points`]).
     Poisson,
-    /// An object's field level set (below 2,000 points, `--surface field`, one-sided scans). The
+    /// An object's field level set (below 1,000 points, `--surface field`, one-sided scans). The
     /// field has ripples a few mesh edges long that follow its feature planes' grid (terraces
     /// on smooth parts where the points are sparse: issue 26's grooves). Averaging the moves
     /// would keep them (each vertex moves by its neighbours' mean move and keeps its own ripple),

@@ -25,7 +25,10 @@ pub struct TrimReport {
 impl TrimReport {
     /// What the reconstruction tells the user after a trim by `factor`.
     pub fn notice(&self, factor: f32) -> String {
-        format!("trimmed {} triangles farther than {factor} x the mean point spacing from the input", self.triangles_removed)
+        format!(
+            "trimmed {} triangles farther than {factor} x the point spacing from the input (the cloud's mean, wider where the points are sparser)",
+            self.triangles_removed
+        )
     }
 
     /// What the reconstruction tells the user after [`trim_between_sheets`] (nothing when
@@ -33,7 +36,7 @@ impl TrimReport {
     pub fn between_sheets_notice(&self, factor: f32, depth: f32) -> Option<String> {
         (self.triangles_removed > 0).then(|| {
             format!(
-                "opened {} triangles ({:.1} % of the area) farther than {factor} x the mean point spacing from the input and over {depth} spacings inside the points' hull: \
+                "opened {} triangles ({:.1} % of the area) farther than {factor} x the point spacing from the input and over {depth} mean spacings inside the points' hull: \
                  the fill the prior put between sheets of points (an open shell: a bowl, a car body), not a side the scan missed; the mesh is not \
                  watertight (--trim opens every part far from the points; --surface poisson meshes the Poisson surface)",
                 self.triangles_removed,
@@ -43,8 +46,9 @@ impl TrimReport {
     }
 }
 
-/// Drops every triangle whose centroid is farther than `factor` × the mean nearest-neighbour
-/// spacing of `points` from the nearest of them, then the vertices no triangle uses any more
+/// Drops every triangle whose centroid is farther than `factor` × the point spacing of `points`
+/// ([`LocalSpacing`]: the mean nearest-neighbour spacing, wider where they are sparser) from the
+/// nearest of them, then the vertices no triangle uses any more
 /// (the rest keep their order; normals and colours follow). `mesh` and `points` must be in the
 /// same coordinates. A `factor` that is not positive and finite, or fewer than two distinct
 /// points, removes nothing.
@@ -127,7 +131,8 @@ fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
 
 /// The least share of a small cloud's mesh area that the fill between sheets must have for
 /// [`trim_between_sheets`] to open it, where the field's level set is the surface because the
-/// cloud is under 2,000 points (no Poisson surface ballooned to say the scan is open). A closed
+/// cloud is under [`crate::plan::POISSON_POINTS`] (no Poisson surface ballooned to say the scan
+/// is open; measured when that was 2,000). A closed
 /// object's mesh there has a few triangles far from its sparse points and deep inside their hull
 /// (9 of the 18 eval clouds at 500, 1k and 1,500 points, at most 1.0 % of the area: opening them
 /// would only make the mesh not watertight), an open shell's fill is a large part of it (bowl
@@ -191,20 +196,76 @@ fn triangle_area(positions: &[[f32; 3]], t: &[u32]) -> Option<f64> {
 }
 
 /// Per triangle of `indices` (into `positions`), its centroid's distance to the nearest point of
-/// `index`; None where an index is out of range. The triangles split over the cores.
-fn centroid_distances(positions: &[[f32; 3]], indices: &[u32], index: &PointIndex) -> Vec<Option<f32>> {
+/// `index` and that point; None where an index is out of range. The triangles split over the
+/// cores.
+fn centroid_distances(positions: &[[f32; 3]], indices: &[u32], index: &PointIndex) -> Vec<Option<(f32, u32)>> {
     let triangles: Vec<&[u32]> = indices.chunks_exact(3).collect();
     crate::par::map_ranges(triangles.len(), |range| {
-        let mut scratch = Vec::new();
+        let mut near = Vec::with_capacity(1);
         triangles[range]
             .iter()
             .map(|t| {
                 let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions.get(i as usize).copied());
                 let (a, b, c) = (a?, b?, c?);
-                Some(index.nearest_distance([0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0), &mut scratch))
+                index.k_nearest([0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0), 1, &mut near);
+                near.first().map(|&(d2, j)| (d2.sqrt(), j))
             })
             .collect()
     })
+}
+
+/// How far from each point "far" begins, in units of the cloud's mean nearest-neighbour spacing:
+/// 1 where the points are as dense as the cloud's mean or denser, and where they are sparser
+/// their own spacing over the mean (the mean over a point's [`LocalSpacing::AROUND`] nearest of
+/// their distance to their [`LocalSpacing::RANK`]-th neighbour, over the cloud's mean of it).
+///
+/// Why: a scan's density falls with the distance from the scanner, and where one part was seen
+/// from far its points lie several mean spacings apart. Measured against the mean alone, the
+/// surface between them was "far from every point": the balloon guard took the sparse end for an
+/// unseen side and the trims opened it (issue 26: a density falling 500 times along the object,
+/// or a sparse half 55 times sparser than the other, came back with that end in shreds).
+pub struct LocalSpacing {
+    /// The cloud's mean nearest-neighbour spacing ([`mean_spacing`]).
+    pub mean: f32,
+    /// Per point, at least 1.
+    scale: Vec<f32>,
+}
+
+impl LocalSpacing {
+    /// The neighbour whose distance measures a point's own spacing (as the fit's sparse reach).
+    const RANK: usize = 4;
+    /// The points over which that is averaged: one point's distance is noisy on an even cloud.
+    const AROUND: usize = 8;
+    /// Taken off the ratio before it counts: where a scan ends (a rim, the opening of a cup) half
+    /// a point's neighbours are missing and its spacing reads about 1.4 times the mean, which is
+    /// not sparser points; from twice the mean up it counts, less this.
+    const RIM: f64 = 1.0;
+
+    pub fn of(points: &[[f32; 3]], index: &PointIndex) -> LocalSpacing {
+        let mut d = crate::sample::neighbour_distances(points, &[1, Self::RANK]);
+        let by_rank = d.pop().unwrap_or_default();
+        let mean = crate::sample::mean_spacing_of(&d.pop().unwrap_or_default());
+        let mean_rank = by_rank.iter().map(|&x| x as f64).sum::<f64>() / by_rank.len().max(1) as f64;
+        if !(mean_rank > 0.0) {
+            return LocalSpacing { mean, scale: vec![1.0; points.len()] };
+        }
+        let scale = crate::par::map_ranges(points.len(), |range| {
+            let mut near = Vec::with_capacity(Self::AROUND);
+            range
+                .map(|i| {
+                    index.k_nearest(points[i], Self::AROUND, &mut near);
+                    let local = near.iter().map(|&(_, j)| by_rank[j as usize] as f64).sum::<f64>() / near.len().max(1) as f64;
+                    (local / mean_rank - Self::RIM).max(1.0) as f32
+                })
+                .collect()
+        });
+        LocalSpacing { mean, scale }
+    }
+
+    /// Point `j`'s spacing over the cloud's mean (at least 1).
+    pub fn scale(&self, j: u32) -> f32 {
+        self.scale.get(j as usize).copied().unwrap_or(1.0)
+    }
 }
 
 /// Which triangles [`trim`] keeps, without changing the mesh (the page's live trim uses it too).
@@ -216,15 +277,24 @@ pub struct NearTriangles {
     pub keep: Option<Vec<bool>>,
 }
 
-/// The triangles (`indices` into `positions`) whose centroid lies within `factor` × the mean
-/// nearest-neighbour spacing of `points` from the nearest of them.
+/// The triangles (`indices` into `positions`) whose centroid lies within `factor` × the point
+/// spacing ([`LocalSpacing`]: the cloud's mean, wider where the points are sparser) of the
+/// nearest of `points`.
 pub fn near_triangles(positions: &[[f32; 3]], indices: &[u32], points: &[[f32; 3]], factor: f32) -> NearTriangles {
-    let spacing = mean_spacing(points);
-    let threshold = factor * spacing;
+    if !(factor > 0.0 && factor.is_finite()) {
+        let spacing = mean_spacing(points);
+        return NearTriangles { spacing, threshold: factor * spacing, keep: None };
+    }
+    let index = PointIndex::new(points);
+    let local = LocalSpacing::of(points, &index);
+    let (spacing, threshold) = (local.mean, factor * local.mean);
     if !(threshold > 0.0 && threshold.is_finite()) {
         return NearTriangles { spacing, threshold, keep: None };
     }
-    let keep = centroid_distances(positions, indices, &PointIndex::new(points)).into_iter().map(|d| d.is_some_and(|d| d <= threshold)).collect();
+    let keep = centroid_distances(positions, indices, &index)
+        .into_iter()
+        .map(|d| d.is_some_and(|(d, j)| d <= threshold * local.scale(j)))
+        .collect();
     NearTriangles { spacing, threshold, keep: Some(keep) }
 }
 
@@ -255,7 +325,7 @@ pub fn surface_distance(mesh: &Mesh, points: &[[f32; 3]]) -> f64 {
     let distances = centroid_distances(&mesh.positions, &mesh.indices, &PointIndex::new(points));
     let (mut area, mut weighted) = (0.0f64, 0.0f64);
     for (t, d) in mesh.indices.chunks_exact(3).zip(distances) {
-        if let (Some(w), Some(d)) = (triangle_area(&mesh.positions, t), d) {
+        if let (Some(w), Some((d, _))) = (triangle_area(&mesh.positions, t), d) {
             area += w;
             weighted += w * d as f64;
         }
@@ -319,6 +389,55 @@ pub fn retain_triangles(mesh: &mut Mesh, keep: &[bool]) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Points on z = 0: dense over x in [0, 1], 25 times sparser over [1, 2], none beyond; a
+    /// mesh of the plane over [0, 3] (cells 0.05). The sparse half's surface is near its points
+    /// though several mean spacings from them; beyond them it is far. An even sheet's spacing is
+    /// the mean's everywhere, its edge included.
+    #[test]
+    fn far_follows_the_points_own_spacing() {
+        let mut rng = crate::rng::SplitMix64(4);
+        let mut points: Vec<[f32; 3]> = (0..2500).map(|_| [rng.unit() as f32, rng.unit() as f32, 0.0]).collect();
+        points.extend((0..100).map(|_| [1.0 + rng.unit() as f32, rng.unit() as f32, 0.0]));
+        let (nx, ny) = (60u32, 20u32);
+        let positions: Vec<[f32; 3]> = (0..=ny).flat_map(|j| (0..=nx).map(move |i| [i as f32 * 0.05, j as f32 * 0.05, 0.0])).collect();
+        let mut indices = Vec::new();
+        for j in 0..ny {
+            for i in 0..nx {
+                let v = j * (nx + 1) + i;
+                indices.extend_from_slice(&[v, v + 1, v + nx + 2, v, v + nx + 2, v + nx + 1]);
+            }
+        }
+        let near = near_triangles(&positions, &indices, &points, DEFAULT_TRIM);
+        let keep = near.keep.unwrap();
+        let share = |lo: f32, hi: f32| {
+            let (mut kept, mut all) = (0, 0);
+            for (t, &k) in indices.chunks_exact(3).zip(&keep) {
+                let x = (positions[t[0] as usize][0] + positions[t[1] as usize][0] + positions[t[2] as usize][0]) / 3.0;
+                if x > lo && x < hi {
+                    all += 1;
+                    kept += k as usize;
+                }
+            }
+            kept as f64 / all as f64
+        };
+        // The mean spacing alone (3 x about 0.01) left most of the sparse half's cells far.
+        let mean_alone = indices
+            .chunks_exact(3)
+            .filter(|t| positions[t[0] as usize][0] > 1.05 && positions[t[0] as usize][0] < 1.95)
+            .filter(|t| {
+                let c = [0, 1, 2].map(|k| (positions[t[0] as usize][k] + positions[t[1] as usize][k] + positions[t[2] as usize][k]) / 3.0);
+                points.iter().map(|p| (0..3).map(|k| (p[k] - c[k]).powi(2)).sum::<f32>()).fold(f32::INFINITY, f32::min).sqrt() <= near.threshold
+            })
+            .count();
+        // (720 triangles lie over the sparse half.)
+        assert!(mean_alone < 360, "the set-up: {mean_alone} of 720 sparse-half triangles near by the mean alone");
+        assert!(share(0.05, 0.95) == 1.0 && share(1.05, 1.95) > 0.85, "{} {}", share(0.05, 0.95), share(1.05, 1.95));
+        assert_eq!(share(2.4, 3.0), 0.0);
+        let even: Vec<[f32; 3]> = (0..=30).flat_map(|i| (0..=30).map(move |j| [i as f32 * 0.1, j as f32 * 0.1, 0.0])).collect();
+        let spacing = LocalSpacing::of(&even, &PointIndex::new(&even));
+        assert!((0..even.len() as u32).all(|j| spacing.scale(j) == 1.0));
+    }
 
     /// A flat grid of points on z = 0 over [0,1]² and a mesh of two squares: one on the grid,
     /// one lifted far above it.

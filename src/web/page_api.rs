@@ -70,7 +70,7 @@ pub fn tuning_step_ms(m: usize, reps: usize) -> Result<f64, JsError> {
 }
 
 /// The triangles of a mesh (given as `reconstruct`'s arrays) that lie within `factor` × the
-/// mean point spacing of `points` (xyz, the cloud or an even subsample of it), as indices into
+/// point spacing of `points` (the mean, wider where they are sparser) (xyz, the cloud or an even subsample of it), as indices into
 /// the same vertices: the page's live trim, without re-running the reconstruction (the
 /// pipeline's `trim` option does the same on the points the network saw).
 #[wasm_bindgen]
