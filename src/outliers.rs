@@ -255,18 +255,24 @@ mod tests {
     use super::*;
     use crate::rng::SplitMix64;
 
+    /// A point uniform on the unit sphere.
+    fn on_sphere(rng: &mut SplitMix64) -> [f64; 3] {
+        let v = [rng.normal(), rng.normal(), rng.normal()];
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|c| c / l)
+    }
+
+    /// 3000 points on a unit sphere, then 300 uniform in the box around it.
+    fn sphere_and_strays(rng: &mut SplitMix64) -> Vec<[f32; 3]> {
+        let mut pts: Vec<[f32; 3]> = (0..3000).map(|_| on_sphere(rng).map(|c| c as f32)).collect();
+        pts.extend((0..300).map(|_| [0, 1, 2].map(|_| (rng.unit() * 3.0 - 1.5) as f32)));
+        pts
+    }
+
     #[test]
     fn scattered_points_go_and_the_surface_stays() {
-        // 3000 points on a unit sphere and 300 uniform in the box around it.
         let mut rng = SplitMix64(5);
-        let mut pts: Vec<[f32; 3]> = (0..3000)
-            .map(|_| {
-                let v = [rng.normal(), rng.normal(), rng.normal()];
-                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                v.map(|c| (c / l) as f32)
-            })
-            .collect();
-        pts.extend((0..300).map(|_| [0, 1, 2].map(|_| (rng.unit() * 3.0 - 1.5) as f32)));
+        let pts = sphere_and_strays(&mut rng);
         let keep = local_density_filter(&pts, NEIGHBOURS, 2.0);
         let surface_kept = keep[..3000].iter().filter(|&&k| k).count();
         let strays_kept = keep[3000..].iter().filter(|&&k| k).count();
@@ -288,9 +294,7 @@ mod tests {
         let mut pts: Vec<[f32; 3]> = Vec::new();
         let (mut dense, mut sparse) = (0, 0);
         while dense < 2950 || sparse < 55 {
-            let v = [rng.normal(), rng.normal(), rng.normal()];
-            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            let p = v.map(|c| (c / l + 0.002 * rng.normal()) as f32);
+            let p = on_sphere(&mut rng).map(|c| (c + 0.002 * rng.normal()) as f32);
             if p[0] < 0.0 && dense < 2950 {
                 dense += 1;
                 pts.push(p);
@@ -307,15 +311,7 @@ mod tests {
         assert!(on_sparse(&keep) >= 50, "{} of 55 sparse-side points kept ({back} set back)", on_sparse(&keep));
         // The same filter on scattered stray points around a whole sphere: none lies beyond an
         // edge, since the surface has none, and they still go.
-        let mut cloud: Vec<[f32; 3]> = (0..3000)
-            .map(|_| {
-                let v = [rng.normal(), rng.normal(), rng.normal()];
-                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                v.map(|c| (c / l) as f32)
-            })
-            .collect();
-        cloud.extend((0..300).map(|_| [0, 1, 2].map(|_| (rng.unit() * 3.0 - 1.5) as f32)));
-        let (kept, dropped, back) = drop_stray(cloud, 2.0);
+        let (kept, dropped, back) = drop_stray(sphere_and_strays(&mut rng), 2.0);
         assert!(dropped >= 200 && back == 0 && kept.len() == 3300 - dropped, "{dropped} dropped, {back} set back");
     }
 
