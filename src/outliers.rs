@@ -41,7 +41,7 @@ pub fn drop_stray(points: Vec<[f32; 3]>, ratio: f32) -> (Vec<[f32; 3]>, usize, u
 /// nearest kept points lies beside it, in their plane, by more than this share of their mean
 /// distance to it: about 0.42 at the straight edge of an even sheet (a half disc's centroid),
 /// 0.1-0.3 inside one.
-pub const EDGE: f64 = 0.4;
+const EDGE: f64 = 0.4;
 /// The kept neighbours that say whether a kept point is an edge.
 const EDGE_NEIGHBOURS: usize = 20;
 
@@ -61,7 +61,7 @@ const EDGE_NEIGHBOURS: usize = 20;
 /// Measured on the harder set's stray-point clouds (10 % of the points uniform in the box): 105
 /// of the 1,095 stray points the test drops come back, the nearest ones to a surface's edge (the
 /// rest of their error in docs/results.md).
-pub fn beyond_the_edge(points: &[[f32; 3]], keep: &mut [bool]) -> usize {
+fn beyond_the_edge(points: &[[f32; 3]], keep: &mut [bool]) -> usize {
     let dropped: Vec<usize> = (0..points.len()).filter(|&i| !keep[i]).collect();
     let kept: Vec<[f32; 3]> = points.iter().zip(keep.iter()).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
     if dropped.is_empty() || kept.len() <= EDGE_NEIGHBOURS {
