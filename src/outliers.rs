@@ -28,8 +28,10 @@ pub const AROUND: usize = 100;
 /// that lie beyond the edge of the points it kept: [`beyond_the_edge`]), how many went, and how
 /// many the density test alone would have dropped but stayed.
 pub fn drop_stray(points: Vec<[f32; 3]>, ratio: f32) -> (Vec<[f32; 3]>, usize, usize) {
-    let mut keep = local_density_filter(&points, NEIGHBOURS, ratio);
-    let kept_back = beyond_the_edge(&points, &mut keep);
+    let index = PointIndex::new(&points);
+    let scores = mean_distances(&points, &index, NEIGHBOURS);
+    let mut keep = verdicts(&points, &index, &scores, ratio);
+    let kept_back = beyond_the_edge(&points, &scores, &mut keep);
     let dropped = keep.iter().filter(|&&k| !k).count();
     if dropped == 0 {
         return (points, 0, kept_back);
@@ -61,22 +63,25 @@ const EDGE_NEIGHBOURS: usize = 20;
 /// Measured on the harder set's stray-point clouds (10 % of the points uniform in the box): 105
 /// of the 1,095 stray points the test drops come back, the nearest ones to a surface's edge (the
 /// rest of their error in docs/results.md).
-fn beyond_the_edge(points: &[[f32; 3]], keep: &mut [bool]) -> usize {
+///
+/// `scores`: each point's mean distance to its [`NEIGHBOURS`] nearest
+/// ([`mean_distances`], the density test's own).
+fn beyond_the_edge(points: &[[f32; 3]], scores: &[f32], keep: &mut [bool]) -> usize {
     let dropped: Vec<usize> = (0..points.len()).filter(|&i| !keep[i]).collect();
     let kept: Vec<[f32; 3]> = points.iter().zip(keep.iter()).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
     if dropped.is_empty() || kept.len() <= EDGE_NEIGHBOURS {
         return 0;
     }
-    let index = PointIndex::new(&kept);
+    let kept_index = PointIndex::new(&kept);
     let back = crate::par::map_ranges(dropped.len(), |range| {
         let mut near = Vec::with_capacity(EDGE_NEIGHBOURS + 1);
         range
             .map(|d| {
                 let p = points[dropped[d]];
-                index.k_nearest(p, 1, &mut near);
+                kept_index.k_nearest(p, 1, &mut near);
                 let Some(&(_, q)) = near.first() else { return false };
                 let q = kept[q as usize];
-                index.k_nearest(q, EDGE_NEIGHBOURS + 1, &mut near);
+                kept_index.k_nearest(q, EDGE_NEIGHBOURS + 1, &mut near);
                 outward(q, &near[1..], &kept).is_some_and(|out| (0..3).map(|a| (p[a] - q[a]) as f64 * out[a]).sum::<f64>() > 0.0)
             })
             .collect()
@@ -87,26 +92,19 @@ fn beyond_the_edge(points: &[[f32; 3]], keep: &mut [bool]) -> usize {
     // stays when it is as large as a piece of the mesh must be to stay ([`MIN_GROUP`]).
     let candidates: Vec<usize> = dropped.iter().zip(back).filter(|(_, b)| *b).map(|(&i, _)| i).collect();
     let at: Vec<[f32; 3]> = candidates.iter().map(|&i| points[i]).collect();
-    let (all, among) = (PointIndex::new(points), PointIndex::new(&at));
+    let among = PointIndex::new(&at);
     let links: Vec<Vec<u32>> = crate::par::map_ranges(candidates.len(), |range| {
-        let mut near = Vec::with_capacity(NEIGHBOURS + 1);
+        let mut near = Vec::with_capacity(LINKS + 1);
         range
             .map(|c| {
-                all.k_nearest(at[c], NEIGHBOURS + 1, &mut near);
-                let reach = near.iter().skip(1).map(|&(d2, _)| d2.sqrt()).sum::<f32>() / near.len().saturating_sub(1).max(1) as f32;
+                let reach = scores[candidates[c]];
                 among.k_nearest(at[c], LINKS + 1, &mut near);
                 near.iter().skip(1).filter(|&&(d2, _)| d2.sqrt() <= reach).map(|&(_, j)| j).collect()
             })
             .collect()
     });
     let mut parent: Vec<u32> = (0..candidates.len() as u32).collect();
-    fn root(parent: &mut [u32], mut x: u32) -> u32 {
-        while parent[x as usize] != x {
-            parent[x as usize] = parent[parent[x as usize] as usize];
-            x = parent[x as usize];
-        }
-        x
-    }
+    let root = crate::mesh::components::find;
     for (c, l) in links.iter().enumerate() {
         for &j in l {
             let (a, b) = (root(&mut parent, c as u32), root(&mut parent, j));
@@ -215,16 +213,18 @@ fn notice(dropped: usize, kept_back: usize, ratio: f32) -> Option<String> {
 /// nearest neighbours is more than `ratio` times the median of the same over its [`AROUND`]
 /// nearest. Clouds of at most `k` points are kept whole. Points must be finite.
 pub fn local_density_filter(points: &[[f32; 3]], k: usize, ratio: f32) -> Vec<bool> {
-    let n = points.len();
-    if n <= k || k == 0 {
-        return vec![true; n];
-    }
     let index = PointIndex::new(points);
-    // Each point's mean distance to its k nearest others (the point itself comes back first,
-    // at distance 0), then its verdict against the median of the same over its `m` nearest.
-    // Two searches a point rather than one list of n·m neighbours (400 MB for a 1M-point scan);
-    // the points split over the cores.
-    let mean: Vec<f32> = crate::par::map_ranges(n, |range| {
+    verdicts(points, &index, &mean_distances(points, &index, k), ratio)
+}
+
+/// Each point's mean distance to its `k` nearest others (`index` indexes `points`; the point
+/// itself comes back first, at distance 0); empty for a cloud of at most `k` points, which
+/// [`verdicts`] keeps whole. The points split over the cores.
+fn mean_distances(points: &[[f32; 3]], index: &PointIndex, k: usize) -> Vec<f32> {
+    if points.len() <= k || k == 0 {
+        return Vec::new();
+    }
+    crate::par::map_ranges(points.len(), |range| {
         let mut near = Vec::with_capacity(k + 1);
         range
             .map(|i| {
@@ -232,14 +232,25 @@ pub fn local_density_filter(points: &[[f32; 3]], k: usize, ratio: f32) -> Vec<bo
                 near.iter().skip(1).take(k).map(|&(d2, _)| d2.sqrt()).sum::<f32>() / k as f32
             })
             .collect()
-    });
+    })
+}
+
+/// Each point's verdict ([`local_density_filter`]): its `mean` distance ([`mean_distances`])
+/// against `ratio` times the median of the same over its [`AROUND`] nearest. Two searches a point
+/// rather than one list of n·m neighbours (400 MB for a 1M-point scan); the points split over the
+/// cores.
+fn verdicts(points: &[[f32; 3]], index: &PointIndex, mean: &[f32], ratio: f32) -> Vec<bool> {
+    let n = points.len();
+    if mean.len() != n {
+        return vec![true; n];
+    }
     let m = AROUND.min(n - 1);
     crate::par::map_ranges(n, |range| {
-        let mut near = Vec::with_capacity(AROUND.max(k) + 1);
+        let mut near = Vec::with_capacity(AROUND + 1);
         let mut theirs = Vec::with_capacity(m);
         range
             .map(|i| {
-                index.k_nearest(points[i], AROUND.max(k) + 1, &mut near);
+                index.k_nearest(points[i], AROUND + 1, &mut near);
                 theirs.clear();
                 theirs.extend(near.iter().skip(1).take(m).map(|&(_, j)| mean[j as usize]));
                 let mid = theirs.len() / 2;
@@ -304,10 +315,12 @@ mod tests {
             }
         }
         let on_sparse = |keep: &[bool]| pts.iter().zip(keep).filter(|(p, &k)| k && p[0] >= 0.0).count();
-        let mut keep = local_density_filter(&pts, NEIGHBOURS, 2.0);
+        let index = PointIndex::new(&pts);
+        let scores = mean_distances(&pts, &index, NEIGHBOURS);
+        let mut keep = verdicts(&pts, &index, &scores, 2.0);
         let by_density = on_sparse(&keep);
         assert!(by_density < 30, "the set-up: the density test should take most of the sparse side ({by_density} of 55 kept)");
-        let back = beyond_the_edge(&pts, &mut keep);
+        let back = beyond_the_edge(&pts, &scores, &mut keep);
         assert!(on_sparse(&keep) >= 50, "{} of 55 sparse-side points kept ({back} set back)", on_sparse(&keep));
         // The same filter on scattered stray points around a whole sphere: none lies beyond an
         // edge, since the surface has none, and they still go.

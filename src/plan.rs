@@ -96,7 +96,7 @@ pub struct MemoryPlan {
 /// lower on every shape at both; 500 0.691 -> 0.687, mixed (fandisk and spot +0.05, bunny
 /// -0.09), so 500 keeps the field. On clouds whose density falls 55x along the object it was
 /// the sparse end that the field lost: 1k 1.004 -> 0.788, 1,500 0.743 -> 0.616 (docs/poisson.md,
-/// "From 1,000 points").
+/// "Uneven density").
 pub const POISSON_POINTS: usize = 1000;
 
 /// Whether a cloud of `n` points (those the network sees) is meshed through a Poisson solve, and

@@ -3,7 +3,9 @@
 
 use super::types::Mesh;
 
-fn find(parent: &mut [u32], mut x: u32) -> u32 {
+/// The root of `x` in the union-find forest `parent`, halving the path on the way (also the
+/// stray-point filter's groups, `crate::outliers`).
+pub(crate) fn find(parent: &mut [u32], mut x: u32) -> u32 {
     while parent[x as usize] != x {
         let p = parent[x as usize];
         parent[x as usize] = parent[p as usize]; // path halving
