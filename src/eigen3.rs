@@ -3,6 +3,34 @@
 //! mesh fit's plane normals (`mesh::fit`). A few sweeps converge to f64 precision for a 3×3;
 //! the loop is bounded whatever the input.
 
+/// The least-squares plane through `points`: their centroid and its unit normal, the
+/// eigenvector of their scatter matrix with the smallest eigenvalue; None for fewer than 3
+/// points or a NaN or an infinity among them. The PCA normals (`orient::pca_normals`) and the
+/// stray-point filter's edge test (`outliers`) take their planes from here; the mesh fit's
+/// (`mesh::fit`) weighs each neighbour by its distance and keeps its own sums.
+pub fn plane(points: impl ExactSizeIterator<Item = [f32; 3]> + Clone) -> Option<([f64; 3], [f64; 3])> {
+    let n = points.len();
+    if n < 3 {
+        return None;
+    }
+    let mut c = [0.0f64; 3];
+    for p in points.clone() {
+        (0..3).for_each(|a| c[a] += p[a] as f64 / n as f64);
+    }
+    let mut cov = [[0.0f64; 3]; 3];
+    for p in points {
+        let d = [0, 1, 2].map(|a| p[a] as f64 - c[a]);
+        for r in 0..3 {
+            for s in 0..3 {
+                cov[r][s] += d[r] * d[s];
+            }
+        }
+    }
+    let (values, vectors) = symmetric(cov)?;
+    let smallest = (0..3).min_by(|&a, &b| values[a].total_cmp(&values[b]))?;
+    Some((c, vectors[smallest]))
+}
+
 /// Eigenvalues (diagonal order, unsorted) and unit eigenvectors (`vectors[i]` belongs to
 /// `values[i]`) of the symmetric matrix `a`; None when `a` has a NaN or an infinity.
 pub fn symmetric(mut a: [[f64; 3]; 3]) -> Option<([f64; 3], [[f64; 3]; 3])> {

@@ -67,28 +67,8 @@ pub fn neighbourhoods(points: &[[f32; 3]], k: usize, rank: usize) -> Neighbourho
 pub fn pca_normals(points: &[[f32; 3]], nb: &Neighbourhoods) -> Vec<[f32; 3]> {
     crate::par::map_ranges(points.len(), |range| {
         range.map(|i| {
-            let near = nb.of(i);
-            let n = near.len() as f64;
-            let mut c = [0.0f64; 3];
-            for &j in near {
-                (0..3).for_each(|a| c[a] += points[j as usize][a] as f64 / n);
-            }
-            let mut cov = [[0.0f64; 3]; 3];
-            for &j in near {
-                let d = [0, 1, 2].map(|a| points[j as usize][a] as f64 - c[a]);
-                for r in 0..3 {
-                    for s in 0..3 {
-                        cov[r][s] += d[r] * d[s];
-                    }
-                }
-            }
-            match crate::eigen3::symmetric(cov) {
-                Some((values, vectors)) if near.len() >= 3 => {
-                    let i = (0..3).min_by(|&a, &b| values[a].total_cmp(&values[b])).unwrap_or(0);
-                    vectors[i].map(|v| v as f32)
-                }
-                _ => [0.0, 0.0, 1.0],
-            }
+            let near = nb.of(i).iter().map(|&j| points[j as usize]);
+            crate::eigen3::plane(near).map_or([0.0, 0.0, 1.0], |(_, normal)| normal.map(|v| v as f32))
         })
         .collect()
     })

@@ -140,7 +140,7 @@ const MIN_GROUP: usize = 10;
 /// dropped points were beyond an edge (0.01-0.18 at 10 % of 3,000); where a sparse end had fewer
 /// points than [`MIN_GROUP`] or 0.5 % of the cloud and went with its part of the mesh (a far
 /// half 55 times sparser at 1,000 and 10,000 points, a density falling 200 or 500 times, scans
-/// of one side), 0.70-1.0. Two in three lies between (2026-12-06; docs/poisson.md, "Uneven
+/// of one side), 0.70-1.0. Two in three lies between (2026-12-05; docs/poisson.md, "Uneven
 /// density"). A cloud with both (a sparse half and 5 % stray points) stays under it (0.38-0.60)
 /// and keeps the rule by group size alone.
 const SPARSE_SHARE: f64 = 2.0 / 3.0;
@@ -152,25 +152,8 @@ const FEW: usize = 3;
 /// indices into `kept`): the direction in their plane from their centroid to `q` (the open
 /// side), when its length is more than [`EDGE`] × their mean distance to `q`; else None.
 fn outward(q: [f32; 3], near: &[(f32, u32)], kept: &[[f32; 3]]) -> Option<[f64; 3]> {
-    if near.len() < 3 {
-        return None;
-    }
+    let (c, normal) = crate::eigen3::plane(near.iter().map(|&(_, j)| kept[j as usize]))?;
     let n = near.len() as f64;
-    let mut c = [0.0f64; 3];
-    for &(_, j) in near {
-        (0..3).for_each(|a| c[a] += kept[j as usize][a] as f64 / n);
-    }
-    let mut cov = [[0.0f64; 3]; 3];
-    for &(_, j) in near {
-        let d = [0, 1, 2].map(|a| kept[j as usize][a] as f64 - c[a]);
-        for r in 0..3 {
-            for s in 0..3 {
-                cov[r][s] += d[r] * d[s];
-            }
-        }
-    }
-    let (values, vectors) = crate::eigen3::symmetric(cov)?;
-    let normal = vectors[(0..3).min_by(|&a, &b| values[a].total_cmp(&values[b]))?];
     let off = [0, 1, 2].map(|a| q[a] as f64 - c[a]);
     let along = (0..3).map(|a| off[a] * normal[a]).sum::<f64>();
     let out = [0, 1, 2].map(|a| off[a] - along * normal[a]);

@@ -22,13 +22,20 @@ pub fn kth_neighbour_distance(points: &[[f32; 3]], k: usize) -> Vec<f32> {
 /// [`kth_neighbour_distance`] for each of the ranks `ks` (each clamped to n - 1), from one
 /// search for the largest.
 pub fn neighbour_distances(points: &[[f32; 3]], ks: &[usize]) -> Vec<Vec<f32>> {
+    if points.len() < 2 {
+        return vec![vec![0.0; points.len()]; ks.len()];
+    }
+    neighbour_distances_in(points, &PointIndex::new(points), ks)
+}
+
+/// [`neighbour_distances`] over `index`, an index of exactly `points`, for a caller that has one.
+pub fn neighbour_distances_in(points: &[[f32; 3]], index: &PointIndex, ks: &[usize]) -> Vec<Vec<f32>> {
     let n = points.len();
     if n < 2 {
         return vec![vec![0.0; n]; ks.len()];
     }
     let ks: Vec<usize> = ks.iter().map(|&k| k.clamp(1, n - 1)).collect();
     let k = ks.iter().copied().max().unwrap_or(1);
-    let index = PointIndex::new(points);
     // For each point, its distance to each rank in turn; the points split over the cores. The
     // k + 1 nearest hold the point itself (at distance 0) unless more than k duplicates of it
     // come first, and either way the k nearest others.

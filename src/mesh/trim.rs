@@ -241,8 +241,9 @@ impl LocalSpacing {
     /// not sparser points; from twice the mean up it counts, less this.
     const RIM: f64 = 1.0;
 
+    /// Over `index`, an index of exactly `points`.
     pub fn of(points: &[[f32; 3]], index: &PointIndex) -> LocalSpacing {
-        let mut d = crate::sample::neighbour_distances(points, &[1, Self::RANK]);
+        let mut d = crate::sample::neighbour_distances_in(points, index, &[1, Self::RANK]);
         let by_rank = d.pop().unwrap_or_default();
         let mean = crate::sample::mean_spacing_of(&d.pop().unwrap_or_default());
         let mean_rank = by_rank.iter().map(|&x| x as f64).sum::<f64>() / by_rank.len().max(1) as f64;
@@ -285,17 +286,36 @@ pub fn near_triangles(positions: &[[f32; 3]], indices: &[u32], points: &[[f32; 3
         let spacing = mean_spacing(points);
         return NearTriangles { spacing, threshold: factor * spacing, keep: None };
     }
-    let index = PointIndex::new(points);
-    let local = LocalSpacing::of(points, &index);
-    let (spacing, threshold) = (local.mean, factor * local.mean);
-    if !(threshold > 0.0 && threshold.is_finite()) {
-        return NearTriangles { spacing, threshold, keep: None };
+    Reach::of(points).near_triangles(positions, indices, factor)
+}
+
+/// The points as "far from them" is measured: their index and their own spacing
+/// ([`LocalSpacing`]), made once where more than one mesh is measured against the same points
+/// (the balloon guard measures the Poisson surface and the field's mesh).
+pub struct Reach<'a> {
+    index: PointIndex<'a>,
+    local: LocalSpacing,
+}
+
+impl<'a> Reach<'a> {
+    pub fn of(points: &'a [[f32; 3]]) -> Reach<'a> {
+        let index = PointIndex::new(points);
+        let local = LocalSpacing::of(points, &index);
+        Reach { index, local }
     }
-    let keep = centroid_distances(positions, indices, &index)
-        .into_iter()
-        .map(|d| d.is_some_and(|(d, j)| d <= threshold * local.scale(j)))
-        .collect();
-    NearTriangles { spacing, threshold, keep: Some(keep) }
+
+    /// [`near_triangles`] against these points.
+    pub fn near_triangles(&self, positions: &[[f32; 3]], indices: &[u32], factor: f32) -> NearTriangles {
+        let (spacing, threshold) = (self.local.mean, factor * self.local.mean);
+        if !(threshold > 0.0 && threshold.is_finite()) {
+            return NearTriangles { spacing, threshold, keep: None };
+        }
+        let keep = centroid_distances(positions, indices, &self.index)
+            .into_iter()
+            .map(|d| d.is_some_and(|(d, j)| d <= threshold * self.local.scale(j)))
+            .collect();
+        NearTriangles { spacing, threshold, keep: Some(keep) }
+    }
 }
 
 /// How near `mesh` comes to `points`: their mean distance to its nearest vertex (0 for a mesh
