@@ -216,14 +216,21 @@ fn centroid_distances(positions: &[[f32; 3]], indices: &[u32], index: &PointInde
 
 /// How far from each point "far" begins, in units of the cloud's mean nearest-neighbour spacing:
 /// 1 where the points are as dense as the cloud's mean or denser, and where they are sparser
-/// their own spacing over the mean (the mean over a point's [`LocalSpacing::AROUND`] nearest of
-/// their distance to their [`LocalSpacing::RANK`]-th neighbour, over the cloud's mean of it).
+/// the point's own spacing over the mean (its distance to its [`LocalSpacing::RANK`]-th
+/// neighbour, over the cloud's mean of it).
 ///
 /// Why: a scan's density falls with the distance from the scanner, and where one part was seen
 /// from far its points lie several mean spacings apart. Measured against the mean alone, the
 /// surface between them was "far from every point": the balloon guard took the sparse end for an
 /// unseen side and the trims opened it (issue 26: a density falling 500 times along the object,
 /// or a sparse half 55 times sparser than the other, came back with that end in shreds).
+///
+/// The point's own distance, not the mean of its neighbours' (session 26): where a sparse part
+/// is a few points beside dense ones (a far half of about 18 points at 1,000), a sparse point's
+/// nearest are mostly dense points, and their mean read it as dense (scale 1 at 8 of 12 sparse
+/// points on stanford-bunny's far half): the balloon guard then took that half for a balloon.
+/// Noise on an even cloud stays under [`LocalSpacing::RIM`]: the eval, harder, thin and other
+/// clouds gave the same meshes either way (docs/poisson.md, "Uneven density").
 pub struct LocalSpacing {
     /// The cloud's mean nearest-neighbour spacing ([`mean_spacing`]).
     pub mean: f32,
@@ -234,8 +241,6 @@ pub struct LocalSpacing {
 impl LocalSpacing {
     /// The neighbour whose distance measures a point's own spacing (as the fit's sparse reach).
     const RANK: usize = 4;
-    /// The points over which that is averaged: one point's distance is noisy on an even cloud.
-    const AROUND: usize = 8;
     /// Taken off the ratio before it counts: where a scan ends (a rim, the opening of a cup) half
     /// a point's neighbours are missing and its spacing reads about 1.4 times the mean, which is
     /// not sparser points; from twice the mean up it counts, less this.
@@ -250,16 +255,7 @@ impl LocalSpacing {
         if !(mean_rank > 0.0) {
             return LocalSpacing { mean, scale: vec![1.0; points.len()] };
         }
-        let scale = crate::par::map_ranges(points.len(), |range| {
-            let mut near = Vec::with_capacity(Self::AROUND);
-            range
-                .map(|i| {
-                    index.k_nearest(points[i], Self::AROUND, &mut near);
-                    let local = near.iter().map(|&(_, j)| by_rank[j as usize] as f64).sum::<f64>() / near.len().max(1) as f64;
-                    (local / mean_rank - Self::RIM).max(1.0) as f32
-                })
-                .collect()
-        });
+        let scale = by_rank.iter().map(|&own| (own as f64 / mean_rank - Self::RIM).max(1.0) as f32).collect();
         LocalSpacing { mean, scale }
     }
 
@@ -457,6 +453,12 @@ mod tests {
         let even: Vec<[f32; 3]> = (0..=30).flat_map(|i| (0..=30).map(move |j| [i as f32 * 0.1, j as f32 * 0.1, 0.0])).collect();
         let spacing = LocalSpacing::of(&even, &PointIndex::new(&even));
         assert!((0..even.len() as u32).all(|j| spacing.scale(j) == 1.0));
+        // A sparse part of a few points beside the dense ones: their nearest are mostly dense
+        // points, but their own spacing is theirs (the mean of their neighbours' read 1).
+        let mut few = points[..2500].to_vec();
+        few.extend([[1.3f32, 0.2, 0.0], [1.3, 0.7, 0.0], [1.7, 0.45, 0.0], [1.95, 0.1, 0.0], [1.95, 0.9, 0.0]]);
+        let spacing = LocalSpacing::of(&few, &PointIndex::new(&few));
+        assert!((2500..few.len() as u32).all(|j| spacing.scale(j) > 10.0), "{:?}", (2500..few.len() as u32).map(|j| spacing.scale(j)).collect::<Vec<_>>());
     }
 
     /// A flat grid of points on z = 0 over [0,1]² and a mesh of two squares: one on the grid,
