@@ -142,23 +142,7 @@ pub fn principal_spread(points: &[[f32; 3]]) -> [f64; 3] {
         return [0.0; 3];
     }
     let n = points.len() as f64;
-    let mut mean = [0f64; 3];
-    for p in points {
-        for a in 0..3 {
-            mean[a] += p[a] as f64;
-        }
-    }
-    mean = mean.map(|m| m / n);
-    let mut cov = [[0f64; 3]; 3];
-    for p in points {
-        let d = [0, 1, 2].map(|a| p[a] as f64 - mean[a]);
-        for i in 0..3 {
-            for j in 0..3 {
-                cov[i][j] += d[i] * d[j];
-            }
-        }
-    }
-    let cov = cov.map(|row| row.map(|v| v / n));
+    let cov = crate::eigen3::scatter(points.iter().copied()).1.map(|row| row.map(|v| v / n));
     let mut ev = crate::eigen3::symmetric(cov).map_or([0.0; 3], |(values, _)| values).map(|v| v.max(0.0).sqrt());
     ev.sort_by(|a, b| b.total_cmp(a));
     ev

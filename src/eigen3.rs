@@ -1,21 +1,16 @@
 //! The eigen-decomposition of a symmetric 3×3 matrix, by cyclic Jacobi rotations: the one
-//! solver behind the flatness check's principal spreads (`cloud::principal_spread`) and the
+//! solver behind the flatness check's principal spreads (`cloud::principal_spread`), the planes
+//! of point neighbourhoods ([`plane`]: PCA normals, the stray-point filter's edge test) and the
 //! mesh fit's plane normals (`mesh::fit`). A few sweeps converge to f64 precision for a 3×3;
 //! the loop is bounded whatever the input.
 
-/// The least-squares plane through `points`: their centroid and its unit normal, the
-/// eigenvector of their scatter matrix with the smallest eigenvalue; None for fewer than 3
-/// points or a NaN or an infinity among them. The PCA normals (`orient::pca_normals`) and the
-/// stray-point filter's edge test (`outliers`) take their planes from here; the mesh fit's
-/// (`mesh::fit`) weighs each neighbour by its distance and keeps its own sums.
-pub fn plane(points: impl ExactSizeIterator<Item = [f32; 3]> + Clone) -> Option<([f64; 3], [f64; 3])> {
-    let n = points.len();
-    if n < 3 {
-        return None;
-    }
+/// The centroid of `points` and their scatter matrix (the sum of the outer products of their
+/// offsets from it: `n` times their covariance); the origin and zero for no points.
+pub fn scatter(points: impl ExactSizeIterator<Item = [f32; 3]> + Clone) -> ([f64; 3], [[f64; 3]; 3]) {
+    let n = points.len().max(1) as f64;
     let mut c = [0.0f64; 3];
     for p in points.clone() {
-        (0..3).for_each(|a| c[a] += p[a] as f64 / n as f64);
+        (0..3).for_each(|a| c[a] += p[a] as f64 / n);
     }
     let mut cov = [[0.0f64; 3]; 3];
     for p in points {
@@ -26,6 +21,19 @@ pub fn plane(points: impl ExactSizeIterator<Item = [f32; 3]> + Clone) -> Option<
             }
         }
     }
+    (c, cov)
+}
+
+/// The least-squares plane through `points`: their centroid and its unit normal, the
+/// eigenvector of their [`scatter`] with the smallest eigenvalue; None for fewer than 3 points
+/// or a NaN or an infinity among them. The PCA normals (`orient::pca_normals`) and the
+/// stray-point filter's edge test (`outliers`) take their planes from here; the mesh fit's
+/// (`mesh::fit`) weighs each neighbour by its distance and keeps its own sums.
+pub fn plane(points: impl ExactSizeIterator<Item = [f32; 3]> + Clone) -> Option<([f64; 3], [f64; 3])> {
+    if points.len() < 3 {
+        return None;
+    }
+    let (c, cov) = scatter(points);
     let (values, vectors) = symmetric(cov)?;
     let smallest = (0..3).min_by(|&a, &b| values[a].total_cmp(&values[b]))?;
     Some((c, vectors[smallest]))
