@@ -136,7 +136,7 @@ const MIN_GROUP: usize = 10;
 /// kept points, what it dropped is a sparse part of the scan and not stray points, and its
 /// groups stay from [`FEW`] points up. Stray points float all around a surface, in front of it
 /// and behind it as much as beyond its edge: on clouds with 3-20 % of their points uniform in
-/// the box (500 to 3,000 points, the six eval shapes, 8 clouds a shape) at most 0.62 of the
+/// the box (500 to 3,000 points, the six eval shapes, 16 clouds a shape) at most 0.62 of the
 /// dropped points were beyond an edge (0.01-0.18 at 10 % of 3,000); where a sparse end had fewer
 /// points than [`MIN_GROUP`] or 0.5 % of the cloud and went with its part of the mesh (a far
 /// half 55 times sparser at 1,000 and 10,000 points, a density falling 200 or 500 times, scans
