@@ -777,11 +777,11 @@ impl Balloon {
     /// its normals) by their [`far_share`]s of `points`; `trim`: the one asked, if any.
     pub fn check(surface: &crate::mesh::Mesh, field: &crate::mesh::Mesh, points: &[[f32; 3]], trim: Option<f32>) -> Balloon {
         let reach = crate::mesh::trim::Reach::of(points);
-        let far = far_share_of(surface, &reach, points.len());
+        let far = far_share_of(surface, &reach);
         if far <= MAX_FAR_SHARE {
             return Balloon::No;
         }
-        let field_far = far_share_of(field, &reach, points.len());
+        let field_far = far_share_of(field, &reach);
         let one_sided = ballooned(far, field_far);
         let (far, field_far) = (100.0 * far, 100.0 * field_far);
         if one_sided {
@@ -829,12 +829,12 @@ pub fn far_spacings(points: usize) -> f32 {
 /// the spacing of `points` ([`crate::mesh::trim::LocalSpacing`]) from the nearest of them; 0
 /// when there is no spacing to measure.
 pub fn far_share(mesh: &crate::mesh::Mesh, points: &[[f32; 3]]) -> f64 {
-    far_share_of(mesh, &crate::mesh::trim::Reach::of(points), points.len())
+    far_share_of(mesh, &crate::mesh::trim::Reach::of(points))
 }
 
-/// [`far_share`] against the `points` points of `reach`.
-fn far_share_of(mesh: &crate::mesh::Mesh, reach: &crate::mesh::trim::Reach, points: usize) -> f64 {
-    let near = reach.near_triangles(&mesh.positions, &mesh.indices, far_spacings(points));
+/// [`far_share`] against the points of `reach`.
+fn far_share_of(mesh: &crate::mesh::Mesh, reach: &crate::mesh::trim::Reach) -> f64 {
+    let near = reach.near_triangles(&mesh.positions, &mesh.indices, far_spacings(reach.len()));
     near.keep.map_or(0.0, |keep| crate::mesh::trim::dropped_area_share(mesh, &keep))
 }
 

@@ -22,9 +22,6 @@ pub fn kth_neighbour_distance(points: &[[f32; 3]], k: usize) -> Vec<f32> {
 /// [`kth_neighbour_distance`] for each of the ranks `ks` (each clamped to n - 1), from one
 /// search for the largest.
 pub fn neighbour_distances(points: &[[f32; 3]], ks: &[usize]) -> Vec<Vec<f32>> {
-    if points.len() < 2 {
-        return vec![vec![0.0; points.len()]; ks.len()];
-    }
     neighbour_distances_in(points, &PointIndex::new(points), ks)
 }
 

@@ -303,6 +303,11 @@ impl<'a> Reach<'a> {
         Reach { index, local }
     }
 
+    /// How many points.
+    pub fn len(&self) -> usize {
+        self.local.scale.len()
+    }
+
     /// [`near_triangles`] against these points.
     pub fn near_triangles(&self, positions: &[[f32; 3]], indices: &[u32], factor: f32) -> NearTriangles {
         let (spacing, threshold) = (self.local.mean, factor * self.local.mean);
