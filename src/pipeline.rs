@@ -248,12 +248,19 @@ impl Engine {
 
         let mut mesh = extraction.mesh;
         // Fitted and trimmed in the unit cube, against the points the network saw.
-        let opened = open_far.then(|| Settings { trim: Some(crate::mesh::trim::DEFAULT_TRIM), ..settings.clone() });
         // Where the field's level set is the surface we chose (a scan the Poisson surface
         // ballooned over, a cloud too small for it), an open shell's fill may go, and the guard
         // in `reconstruct` compares how far its mesh and the network's lie from the points.
-        let closure = if one_sided { Closure::OneSided } else if settings.surface == Surface::Auto && !plan.poisson { Closure::Sparse } else { Closure::Keep };
-        let finished = crate::mesh::finish::finish(&mut mesh, &points, opened.as_ref().unwrap_or(settings), crate::mesh::fit::Fitted::object(plan.poisson), closure, None, &mut notices, &mut timings);
+        let closure = if one_sided {
+            Closure::OneSided
+        } else if open_far {
+            Closure::Open
+        } else if settings.surface == Surface::Auto && !plan.poisson {
+            Closure::Sparse
+        } else {
+            Closure::Keep
+        };
+        let finished = crate::mesh::finish::finish(&mut mesh, &points, settings, crate::mesh::fit::Fitted::object(plan.poisson), closure, None, &mut notices, &mut timings);
         let distance = if measure { closure.distance(&mesh, &points) } else { None };
         for p in &mut mesh.positions {
             *p = norm.inverse(*p);

@@ -777,11 +777,14 @@ impl Balloon {
     /// its normals) by their [`far_share`]s of `points`; `trim`: the one asked, if any.
     pub fn check(surface: &crate::mesh::Mesh, field: &crate::mesh::Mesh, points: &[[f32; 3]], trim: Option<f32>) -> Balloon {
         let reach = crate::mesh::trim::Reach::of(points);
-        let far = far_share_of(surface, &reach);
-        if far <= MAX_FAR_SHARE {
+        // Far from every point or far outside their hull ([`crate::mesh::trim::OUTSIDE_HULL`]);
+        // the verdict below weighs the distance from the points alone.
+        let beyond = reach.near_inside_hull(&surface.positions, &surface.indices, far_spacings(reach.len()), crate::mesh::trim::OUTSIDE_HULL);
+        let beyond = beyond.keep.map_or(0.0, |keep| crate::mesh::trim::dropped_area_share(surface, &keep));
+        if beyond <= MAX_FAR_SHARE {
             return Balloon::No;
         }
-        let field_far = far_share_of(field, &reach);
+        let (far, field_far) = (far_share_of(surface, &reach), far_share_of(field, &reach));
         let one_sided = ballooned(far, field_far);
         let (far, field_far) = (100.0 * far, 100.0 * field_far);
         if one_sided {
@@ -792,14 +795,19 @@ impl Balloon {
         }
         let open = trim.is_none();
         let opened = if open {
-            format!(" and opened where it is farther than {} point spacings from them (--trim), as neither closure is the scan's", crate::mesh::trim::DEFAULT_TRIM)
+            format!(
+                " and opened where it is farther than {} point spacings from them or over {} mean spacings outside their hull, as neither closure is the scan's",
+                crate::mesh::trim::DEFAULT_TRIM,
+                crate::mesh::trim::OUTSIDE_HULL
+            )
         } else {
             String::new()
         };
+        let beyond = 100.0 * beyond;
         let notice = format!(
-            "the Poisson surface put {far:.1} % of its area far from every point, but the field's own level set {field_far:.1} % (walls thinner than the \
-             field resolves, or an opening the points ring?): the Poisson surface is kept{opened} (--surface poisson, \"Surface\": screened Poisson, \
-             keeps it whole; --surface field meshes the field)"
+            "the Poisson surface put {beyond:.1} % of its area far from every point or outside their hull ({far:.1} % far), but the field's own level set \
+             {field_far:.1} % far (walls thinner than the field resolves, an opening the points ring, or a slab beside sparse points?): the Poisson \
+             surface is kept{opened} (--surface poisson, \"Surface\": screened Poisson, keeps it whole; --surface field meshes the field)"
         );
         Balloon::Kept { notice, open }
     }

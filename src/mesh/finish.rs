@@ -6,7 +6,7 @@
 use super::fit::{fit_cloud, FitReport, Fitted};
 use super::sheets::single_layer;
 use super::simplify::{simplify, SimplifyReport, Target};
-use super::trim::{reach, surface_distance, trim, trim_between_sheets, TrimReport, BETWEEN_SHEETS_DEPTH, DEFAULT_TRIM, SPARSE_BETWEEN_SHEETS_SHARE};
+use super::trim::{open_kept, reach, surface_distance, trim, trim_between_sheets, TrimReport, BETWEEN_SHEETS_DEPTH, DEFAULT_TRIM, SPARSE_BETWEEN_SHEETS_SHARE};
 use super::types::Mesh;
 use crate::gpu::now;
 use crate::settings::Settings;
@@ -28,6 +28,11 @@ pub enum Closure {
     /// ([`super::remove_unsupported_components`]); what lies far from the points deep inside
     /// their hull goes ([`trim_between_sheets`]).
     OneSided,
+    /// A Poisson surface that the balloon guard kept over the field's farther mesh (walls
+    /// thinner than the field resolves, an opening the points ring, a slab beyond the points)
+    /// with no trim asked for: it is opened where it is far from the points or far outside their
+    /// hull ([`open_kept`]), as neither closure is the scan's.
+    Open,
     /// The field's level set of a cloud too small for the Poisson surface, which cannot tell an
     /// open shell: the fill between sheets goes only where it is a large part of the mesh
     /// ([`SPARSE_BETWEEN_SHEETS_SHARE`]).
@@ -51,7 +56,7 @@ impl Closure {
     ///   500-1,500 points (docs/poisson.md, "Both ways below 2,000 points").
     pub fn distance(self, mesh: &Mesh, points: &[[f32; 3]]) -> Option<f64> {
         match self {
-            Closure::Keep => None,
+            Closure::Keep | Closure::Open => None,
             Closure::OneSided => Some(reach(mesh, points)),
             Closure::Sparse => Some(0.5 * (reach(mesh, points) + surface_distance(mesh, points))),
         }
@@ -97,6 +102,11 @@ pub fn finish(
         Some(factor) => {
             let r = trim(mesh, points, factor);
             notices.push(r.notice(factor));
+            Some(r)
+        }
+        None if closure == Closure::Open => {
+            let r = open_kept(mesh, points);
+            notices.push(r.opened_notice());
             Some(r)
         }
         // A one-sided scan's closure stays, an open shell's fill goes.
