@@ -779,12 +779,14 @@ impl Balloon {
         let reach = crate::mesh::trim::Reach::of(points);
         // Far from every point or far outside their hull ([`crate::mesh::trim::OUTSIDE_HULL`]);
         // the verdict below weighs the distance from the points alone.
-        let beyond = reach.near_inside_hull(&surface.positions, &surface.indices, far_spacings(reach.len()), crate::mesh::trim::OUTSIDE_HULL);
-        let beyond = beyond.keep.map_or(0.0, |keep| crate::mesh::trim::dropped_area_share(surface, &keep));
+        let near = reach.near_inside_hull(&surface.positions, &surface.indices, far_spacings(reach.len()), crate::mesh::trim::OUTSIDE_HULL);
+        let Some(mut keep) = near.keep else { return Balloon::No };
+        let beyond = crate::mesh::trim::dropped_area_share(surface, &keep);
         if beyond <= MAX_FAR_SHARE {
             return Balloon::No;
         }
-        let (far, field_far) = (far_share_of(surface, &reach), far_share_of(field, &reach));
+        near.outside_hull.iter().for_each(|&t| keep[t] = true);
+        let (far, field_far) = (crate::mesh::trim::dropped_area_share(surface, &keep), far_share_of(field, &reach));
         let one_sided = ballooned(far, field_far);
         let (far, field_far) = (100.0 * far, 100.0 * field_far);
         if one_sided {

@@ -279,6 +279,9 @@ pub struct NearTriangles {
     /// Per triangle: its centroid is within `threshold` of a point (and its indices are in
     /// range). None when the threshold is not positive and finite: nothing is to be removed.
     pub keep: Option<Vec<bool>>,
+    /// The triangles within reach of a point that `keep` drops as lying too far outside the
+    /// points' hull ([`Reach::near_inside_hull`]; empty otherwise).
+    pub outside_hull: Vec<usize>,
 }
 
 /// The triangles (`indices` into `positions`) whose centroid lies within `factor` × the point
@@ -287,7 +290,7 @@ pub struct NearTriangles {
 pub fn near_triangles(positions: &[[f32; 3]], indices: &[u32], points: &[[f32; 3]], factor: f32) -> NearTriangles {
     if !(factor > 0.0 && factor.is_finite()) {
         let spacing = mean_spacing(points);
-        return NearTriangles { spacing, threshold: factor * spacing, keep: None };
+        return NearTriangles { spacing, threshold: factor * spacing, keep: None, outside_hull: Vec::new() };
     }
     Reach::of(points).near_triangles(positions, indices, factor)
 }
@@ -376,26 +379,28 @@ impl<'a> Reach<'a> {
     fn near(&self, positions: &[[f32; 3]], indices: &[u32], factor: f32, outside: Option<f32>, sparse_reach: bool) -> NearTriangles {
         let (spacing, threshold) = (self.local.mean, factor * self.local.mean);
         if !(threshold > 0.0 && threshold.is_finite()) {
-            return NearTriangles { spacing, threshold, keep: None };
+            return NearTriangles { spacing, threshold, keep: None, outside_hull: Vec::new() };
         }
         let distances = centroid_distances(positions, indices, &self.index);
         let mut keep: Vec<bool> = distances.iter().map(|d| d.is_some_and(|(d, j)| d <= threshold * self.local.scale(j))).collect();
         if sparse_reach {
             self.reach_of_sparse_points(positions, indices, threshold, &mut keep, &distances);
         }
+        let mut outside_hull = Vec::new();
         if let Some(outside) = outside.map(|o| o * spacing).filter(|o| o.is_finite()) {
             // Only a centroid farther than that from every point can lie that far outside their
             // hull, which holds them all: the hull's 2048 planes are tried on those alone.
             let beyond: Vec<usize> = (0..keep.len()).filter(|&t| keep[t] && distances[t].is_some_and(|(d, _)| d > outside)).collect();
             if !beyond.is_empty() {
                 let hull = self.hull();
-                let out = crate::par::map_ranges(beyond.len(), |range| {
+                let out: Vec<bool> = crate::par::map_ranges(beyond.len(), |range| {
                     range.map(|b| hull.depth(centroid(positions, &indices[3 * beyond[b]..3 * beyond[b] + 3])) < -outside).collect()
                 });
-                beyond.iter().zip(out).for_each(|(&t, out): (&usize, bool)| keep[t] = !out);
+                outside_hull = beyond.into_iter().zip(out).filter_map(|(t, out)| out.then_some(t)).collect();
+                outside_hull.iter().for_each(|&t| keep[t] = false);
             }
         }
-        NearTriangles { spacing, threshold, keep: Some(keep) }
+        NearTriangles { spacing, threshold, keep: Some(keep), outside_hull }
     }
 }
 
