@@ -214,7 +214,10 @@ impl Engine {
             return Err(PipelineError::Cancelled);
         }
         let mut extraction = extraction.map_err(PipelineError::Mesh)?;
-        let mut open_far = false; // Thin walls: a Poisson surface kept over a worse field, opened.
+        // The points as the balloon guard measures "far" (index, spacing, hull), made once for the
+        // guard and the opening of a Poisson surface it keeps over a worse field (thin walls).
+        let guard = (plan.poisson && settings.surface == Surface::Auto).then(|| crate::mesh::trim::Reach::of(&points));
+        let mut open_far = false;
         timings.push(("mesh", now() - t));
         peaks.end("meshing");
         if extraction.mesh.indices.is_empty() {
@@ -233,7 +236,7 @@ impl Engine {
             let values = |q: Vec<[f32; 3]>| std::future::ready(Ok(q.iter().map(|&p| chi.value(p)).collect()));
             let surface = extract_gpu_async(&self.gpu, values, &opts).await.map_err(PipelineError::Mesh)?;
             // Judged only where the surface is ours to choose (`--surface poisson` keeps it).
-            match (settings.surface == Surface::Auto).then(|| crate::poisson::Balloon::check(&surface.mesh, &extraction.mesh, &points, settings.trim)) {
+            match guard.as_ref().map(|reach| crate::poisson::Balloon::check(&surface.mesh, &extraction.mesh, reach, settings.trim)) {
                 Some(crate::poisson::Balloon::FieldInstead(notice)) => return Ok(Attempt::FieldInstead { notice, seconds: now() - t_all }),
                 Some(crate::poisson::Balloon::Kept { notice, open }) => { open_far = open; notices.push(notice) }
                 _ => {}
@@ -253,8 +256,8 @@ impl Engine {
         // in `reconstruct` compares how far its mesh and the network's lie from the points.
         let closure = if one_sided {
             Closure::OneSided
-        } else if open_far {
-            Closure::Open
+        } else if let Some(reach) = guard.as_ref().filter(|_| open_far) {
+            Closure::Open(reach)
         } else if settings.surface == Surface::Auto && !plan.poisson {
             Closure::Sparse
         } else {

@@ -774,9 +774,9 @@ pub enum Balloon {
 
 impl Balloon {
     /// Judges `surface` (the Poisson surface) against `field` (the field's own mesh that signed
-    /// its normals) by their [`far_share`]s of `points`; `trim`: the one asked, if any.
-    pub fn check(surface: &crate::mesh::Mesh, field: &crate::mesh::Mesh, points: &[[f32; 3]], trim: Option<f32>) -> Balloon {
-        let reach = crate::mesh::trim::Reach::of(points);
+    /// its normals) by their [`far_share`]s of the points of `reach` (which a [`Balloon::Kept`]
+    /// surface is opened against); `trim`: the one asked, if any.
+    pub fn check(surface: &crate::mesh::Mesh, field: &crate::mesh::Mesh, reach: &crate::mesh::trim::Reach, trim: Option<f32>) -> Balloon {
         // Far from every point or far outside their hull ([`crate::mesh::trim::OUTSIDE_HULL`]);
         // the verdict below weighs the distance from the points alone.
         let near = reach.near_inside_hull(&surface.positions, &surface.indices, far_spacings(reach.len()), crate::mesh::trim::OUTSIDE_HULL);
@@ -786,7 +786,7 @@ impl Balloon {
             return Balloon::No;
         }
         near.outside_hull.iter().for_each(|&t| keep[t] = true);
-        let (far, field_far) = (crate::mesh::trim::dropped_area_share(surface, &keep), far_share_of(field, &reach));
+        let (far, field_far) = (crate::mesh::trim::dropped_area_share(surface, &keep), far_share_of(field, reach));
         let one_sided = ballooned(far, field_far);
         let (far, field_far) = (100.0 * far, 100.0 * field_far);
         if one_sided {

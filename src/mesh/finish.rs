@@ -6,7 +6,7 @@
 use super::fit::{fit_cloud, FitReport, Fitted};
 use super::sheets::single_layer;
 use super::simplify::{simplify, SimplifyReport, Target};
-use super::trim::{open_kept, reach, surface_distance, trim, trim_between_sheets, TrimReport, BETWEEN_SHEETS_DEPTH, DEFAULT_TRIM, SPARSE_BETWEEN_SHEETS_SHARE};
+use super::trim::{open_kept, reach, surface_distance, trim, trim_between_sheets, Reach, TrimReport, BETWEEN_SHEETS_DEPTH, DEFAULT_TRIM, SPARSE_BETWEEN_SHEETS_SHARE};
 use super::types::Mesh;
 use crate::gpu::now;
 use crate::settings::Settings;
@@ -19,8 +19,8 @@ pub struct Finished {
 }
 
 /// What the finish may take of a closed surface that no trim was asked for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Closure {
+#[derive(Clone, Copy)]
+pub enum Closure<'a> {
     /// It stays whole: a Poisson surface kept, a scene, the field's surface asked for.
     Keep,
     /// The scan saw one side of the object or is an open shell (the Poisson surface ballooned):
@@ -31,15 +31,16 @@ pub enum Closure {
     /// A Poisson surface that the balloon guard kept over the field's farther mesh (walls
     /// thinner than the field resolves, an opening the points ring, a slab beyond the points)
     /// with no trim asked for: it is opened where it is far from the points or far outside their
-    /// hull ([`open_kept`]), as neither closure is the scan's.
-    Open,
+    /// hull ([`open_kept`]), as neither closure is the scan's; measured against the points as
+    /// the guard measured them (the same points the finish gets).
+    Open(&'a Reach<'a>),
     /// The field's level set of a cloud too small for the Poisson surface, which cannot tell an
     /// open shell: the fill between sheets goes only where it is a large part of the mesh
     /// ([`SPARSE_BETWEEN_SHEETS_SHARE`]).
     Sparse,
 }
 
-impl Closure {
+impl Closure<'_> {
     /// How far a finished mesh lies from the points, for the guard that keeps the network's
     /// mesh where the tuned field's is farther (`pipeline`, docs/poisson.md "Open shells"); None
     /// where the surface is kept whole (no guard).
@@ -56,7 +57,7 @@ impl Closure {
     ///   500-1,500 points (docs/poisson.md, "Both ways below 2,000 points").
     pub fn distance(self, mesh: &Mesh, points: &[[f32; 3]]) -> Option<f64> {
         match self {
-            Closure::Keep | Closure::Open => None,
+            Closure::Keep | Closure::Open(_) => None,
             Closure::OneSided => Some(reach(mesh, points)),
             Closure::Sparse => Some(0.5 * (reach(mesh, points) + surface_distance(mesh, points))),
         }
@@ -80,7 +81,7 @@ pub fn finish(
     timings: &mut Vec<(&'static str, f64)>,
 ) -> Finished {
     if let Some(share) = settings.min_support {
-        let r = super::remove_unsupported_components(mesh, points, share as f32, closure == Closure::OneSided);
+        let r = super::remove_unsupported_components(mesh, points, share as f32, matches!(closure, Closure::OneSided));
         notices.extend(r.unsupported_notice(share));
     }
     let fit = settings.fit.then(|| {
@@ -104,20 +105,22 @@ pub fn finish(
             notices.push(r.notice(factor));
             Some(r)
         }
-        None if closure == Closure::Open => {
-            let r = open_kept(mesh, points);
-            notices.push(r.opened_notice());
-            Some(r)
-        }
-        // A one-sided scan's closure stays, an open shell's fill goes.
-        None if closure != Closure::Keep => {
-            let (factor, depth) = (DEFAULT_TRIM, BETWEEN_SHEETS_DEPTH);
-            let min_share = if closure == Closure::Sparse { SPARSE_BETWEEN_SHEETS_SHARE } else { 0.0 };
-            let r = trim_between_sheets(mesh, points, factor, depth, min_share);
-            notices.extend(r.between_sheets_notice(factor, depth));
-            Some(r)
-        }
-        None => None,
+        None => match closure {
+            Closure::Keep => None,
+            Closure::Open(reach) => {
+                let r = open_kept(mesh, reach);
+                notices.push(r.opened_notice());
+                Some(r)
+            }
+            // A one-sided scan's closure stays, an open shell's fill goes.
+            Closure::OneSided | Closure::Sparse => {
+                let (factor, depth) = (DEFAULT_TRIM, BETWEEN_SHEETS_DEPTH);
+                let min_share = if matches!(closure, Closure::Sparse) { SPARSE_BETWEEN_SHEETS_SHARE } else { 0.0 };
+                let r = trim_between_sheets(mesh, points, factor, depth, min_share);
+                notices.extend(r.between_sheets_notice(factor, depth));
+                Some(r)
+            }
+        },
     };
     if trim.is_some() {
         timings.push(("trim", now() - t));

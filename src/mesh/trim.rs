@@ -429,8 +429,8 @@ const SPARSE_REACH_NEAREST: usize = 8;
 /// every point (the nearest point's, or one of the [`SPARSE_REACH_NEAREST`] nearest sparse
 /// points'), and those more than [`OUTSIDE_HULL`] mean spacings outside the points' hull, where
 /// the guard counted them far too.
-pub fn open_kept(mesh: &mut Mesh, points: &[[f32; 3]]) -> TrimReport {
-    let near = Reach::of(points).near(&mesh.positions, &mesh.indices, DEFAULT_TRIM, Some(OUTSIDE_HULL), true);
+pub fn open_kept(mesh: &mut Mesh, reach: &Reach) -> TrimReport {
+    let near = reach.near(&mesh.positions, &mesh.indices, DEFAULT_TRIM, Some(OUTSIDE_HULL), true);
     drop_far(mesh, near)
 }
 
@@ -619,7 +619,7 @@ mod tests {
         assert_eq!(reach.near_inside_hull(&low, &indices, 8.0, OUTSIDE_HULL).keep, reach.near_triangles(&low, &indices, 8.0).keep);
         // The opening takes the slab and keeps the sheet on the points.
         let mut mesh = Mesh { normals: vec![[0.0, 0.0, 1.0]; positions.len()], colors: None, indices, positions };
-        let r = open_kept(&mut mesh, &points);
+        let r = open_kept(&mut mesh, &Reach::of(&points));
         assert!(r.triangles_removed >= per_sheet && mesh.positions.iter().all(|p| p[2] == 0.0), "{r:?}");
         assert!(r.opened_notice().contains(&format!("opened the Poisson surface: {} triangles", r.triangles_removed)));
     }
@@ -652,7 +652,7 @@ mod tests {
         let gone: Vec<f32> = mesh.indices.chunks_exact(3).filter(|t| !left.contains(&key(&mesh, t))).map(|t| centroid(&mesh.positions, t)[0]).collect();
         assert!(gone.len() == t.triangles_removed && gone.iter().all(|&x| x > 1.0 && x < 1.1), "{gone:?}");
         let mut opened = mesh.clone();
-        let r = open_kept(&mut opened, &points);
+        let r = open_kept(&mut opened, &Reach::of(&points));
         assert_eq!((r.triangles_removed, &opened.indices), (0, &mesh.indices), "the opening keeps the band");
     }
 
