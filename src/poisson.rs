@@ -806,9 +806,14 @@ impl Balloon {
             String::new()
         };
         let beyond = 100.0 * beyond;
+        // The hull's part said only where it added to the share.
+        let where_ = if format!("{beyond:.1}") == format!("{far:.1}") {
+            String::new()
+        } else {
+            format!(" or outside their hull ({far:.1} % far from them)")
+        };
         let notice = format!(
-            "the Poisson surface put {beyond:.1} % of its area far from every point or outside their hull ({far:.1} % far), but the field's own level set \
-             {field_far:.1} % far (walls thinner than the field resolves, an opening the points ring, or a slab beside sparse points?): the Poisson \
+            "the Poisson surface put {beyond:.1} % of its area far from every point{where_}, but the field's own level set {field_far:.1} % far (walls thinner than the field resolves, an opening the points ring, or a slab beside sparse points?): the Poisson \
              surface is kept{opened} (--surface poisson, \"Surface\": screened Poisson, keeps it whole; --surface field meshes the field)"
         );
         Balloon::Kept { notice, open }
