@@ -162,17 +162,98 @@ fn outward(q: [f32; 3], near: &[(f32, u32)], kept: &[[f32; 3]]) -> Option<[f64; 
     (mean > 0.0 && length > EDGE * mean).then_some(out)
 }
 
-/// `points` without the stray ones, and what to tell the user: (text, whether it is a warning)
-/// — a warning when the filter took more than [`LARGE_SHARE`] of them, else a notice of how many
-/// went (nothing when none did).
-pub fn filter(points: Vec<[f32; 3]>, ratio: f32) -> (Vec<[f32; 3]>, Option<(String, bool)>) {
+/// `points` without the stray ones and without the few that lie apart from the rest
+/// ([`apart`]), and what to tell the user: (text, whether it is a warning) — a warning when the
+/// density test took more than [`LARGE_SHARE`] of them, else a notice of how many went (nothing
+/// when none did), and a notice of the points that lay apart.
+pub fn filter(points: Vec<[f32; 3]>, ratio: f32) -> (Vec<[f32; 3]>, Vec<(String, bool)>) {
     let total = points.len();
     let (kept, dropped, kept_back) = drop_stray(points, ratio);
-    let said = match warning(dropped, total, ratio) {
-        Some(w) => Some((w, true)),
-        None => notice(dropped, kept_back, ratio).map(|n| (n, false)),
+    let mut said: Vec<(String, bool)> = match warning(dropped, total, ratio) {
+        Some(w) => vec![(w, true)],
+        None => notice(dropped, kept_back, ratio).map(|n| (n, false)).into_iter().collect(),
     };
+    let (kept, away) = drop_apart(kept);
+    said.extend(away.map(|a| (a, false)));
     (kept, said)
+}
+
+/// The most of the points that a part lying apart may hold and still be dropped ([`apart`]): a
+/// reflection or a bit of another object is a handful of points; two objects of a scan hold
+/// more, and stay.
+pub const APART_SHARE: f64 = 0.01;
+
+/// Which of `points` lie apart from the rest (`true`): beyond an empty slab across one axis
+/// wider than the bulk of the cloud is long (the longest side of the box between the 5th and
+/// 95th percentiles along each axis), where at most [`APART_SHARE`] of the points lie on the
+/// slab's far side. Points must be finite.
+///
+/// Why: the density test keeps a tight cluster however far from the object it lies (a
+/// reflection, a piece of a wall through a door, a second object), and the bounding box it
+/// stretches shrinks the object inside the network's unit cube and the mesh's grid: a sphere of
+/// 3,000 points with 30 points 50 radii away came back as a blob of 217 triangles. An empty slab
+/// wider than the object itself is what no scan of one object holds, however its density falls
+/// (a sparse end's points leave gaps of about their spacing).
+pub fn apart(points: &[[f32; 3]]) -> Vec<bool> {
+    let n = points.len();
+    let mut away = vec![false; n];
+    if n < 20 {
+        return away;
+    }
+    let sorted: Vec<Vec<f32>> = (0..3)
+        .map(|a| {
+            let mut xs: Vec<f32> = points.iter().map(|p| p[a]).collect();
+            xs.sort_unstable_by(f32::total_cmp);
+            xs
+        })
+        .collect();
+    let at = |xs: &[f32], q: f64| xs[(q * (n - 1) as f64).round() as usize];
+    let bulk = sorted.iter().map(|xs| at(xs, 0.95) - at(xs, 0.05)).fold(0.0f32, f32::max);
+    if bulk <= 0.0 {
+        return away;
+    }
+    let most = (APART_SHARE * n as f64).floor() as usize;
+    for (a, xs) in sorted.iter().enumerate() {
+        // From the median outwards, the first slab wider than the bulk with few enough points
+        // beyond it, on each side.
+        let wide = |i: usize| xs[i + 1] - xs[i] > bulk;
+        let above = (n / 2..n - 1).find(|&i| wide(i) && n - 1 - i <= most).map(|i| xs[i]);
+        let below = (0..n / 2).rev().find(|&i| wide(i) && i + 1 <= most).map(|i| xs[i + 1]);
+        for (p, away) in points.iter().zip(away.iter_mut()) {
+            *away |= above.is_some_and(|hi| p[a] > hi) || below.is_some_and(|lo| p[a] < lo);
+        }
+    }
+    away
+}
+
+/// `points` without those that lie [`apart`], and a notice of how many went and how far.
+fn drop_apart(points: Vec<[f32; 3]>) -> (Vec<[f32; 3]>, Option<String>) {
+    let away = apart(&points);
+    let went = away.iter().filter(|&&a| a).count();
+    if went == 0 {
+        return (points, None);
+    }
+    let total = points.len();
+    let (kept, gone): (Vec<_>, Vec<_>) = points.into_iter().zip(away).partition(|(_, a)| !*a);
+    let kept: Vec<[f32; 3]> = kept.into_iter().map(|(p, _)| p).collect();
+    let side = |ps: &mut dyn Iterator<Item = [f32; 3]>| {
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for p in ps {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        (0..3).map(|a| hi[a] - lo[a]).fold(0.0f32, f32::max)
+    };
+    let rest = side(&mut kept.iter().copied());
+    let all = side(&mut kept.iter().copied().chain(gone.iter().map(|(p, _)| *p)));
+    let notice = format!(
+        "dropped {went} of {total} points that lie apart from the rest, beyond empty space wider than the rest of the cloud \
+         (they stretched its extent from {rest:.4} to {all:.4} units, which would shrink the object in the reconstruction): \
+         a reflection or a piece of something else; --keep-outliers keeps them"
+    );
+    (kept, Some(notice))
 }
 
 /// A share of the points beyond which the filter is more likely wrong than the cloud: stray
@@ -355,6 +436,51 @@ mod tests {
         cloud.extend((0..100).map(|_| [0, 1, 2].map(|_| (rng.unit() * 3.0 - 1.5) as f32)));
         let (_, dropped, back) = drop_stray(cloud, 2.0);
         assert!(dropped >= 40 && back <= 2, "{dropped} dropped, {back} set back");
+    }
+
+    #[test]
+    fn a_few_points_far_apart_go_and_the_object_stays() {
+        // 3,000 points of a unit sphere and 30 in a tight cluster 50 radii away: dense among
+        // themselves, so the density test keeps them.
+        let mut rng = SplitMix64(4);
+        let mut pts: Vec<[f32; 3]> = (0..3000).map(|_| on_sphere(&mut rng).map(|c| (c + 0.005 * rng.normal()) as f32)).collect();
+        pts.extend((0..30).map(|_| [0, 1, 2].map(|_| (50.0 + 0.01 * rng.normal()) as f32)));
+        let (kept, said) = filter(pts.clone(), 2.0);
+        assert_eq!(kept.len(), 3000, "{said:?}");
+        assert!(kept.iter().all(|p| p[0] < 2.0));
+        assert!(said.iter().any(|(s, w)| !w && s.starts_with("dropped 30 of 3030 points that lie apart")), "{said:?}");
+        // One far point on the other side too, along one axis only.
+        pts.push([-40.0, 0.0, 0.0]);
+        assert_eq!(apart(&pts).iter().filter(|&&a| a).count(), 31);
+        // More than APART_SHARE of the points apart (a second object): they stay.
+        pts.extend((0..30).map(|_| [0, 1, 2].map(|_| (50.0 + 0.01 * rng.normal()) as f32)));
+        assert_eq!(apart(&pts).iter().filter(|&&a| a).count(), 1, "only the lone point at x = -40");
+    }
+
+    #[test]
+    fn nothing_lies_apart_in_an_object_its_strays_or_a_falling_density() {
+        let mut rng = SplitMix64(6);
+        // Strays uniform in the box around a sphere, and the sphere alone.
+        let pts = sphere_and_strays(&mut rng);
+        assert!(apart(&pts).iter().all(|&a| !a));
+        // Two spheres as far apart as they are wide, the second half as dense.
+        let mut two: Vec<[f32; 3]> = pts[..3000].to_vec();
+        two.extend((0..1500).map(|_| on_sphere(&mut rng).map(|c| c as f32)).map(|p| [p[0] + 6.0, p[1], p[2]]));
+        assert!(apart(&two).iter().all(|&a| !a));
+        // A flat patch whose density falls 500x along x (its sparse end a few points with wide
+        // gaps between them), and a thin object lying on a floor (the floor's bulk is thin across
+        // it, not the cloud's).
+        let mut falling = Vec::new();
+        while falling.len() < 3000 {
+            let (x, y) = (rng.unit(), rng.unit());
+            if rng.unit() < (-(500f64).ln() * x).exp() {
+                falling.push([x as f32, y as f32, (0.002 * rng.normal()) as f32]);
+            }
+        }
+        assert!(apart(&falling).iter().all(|&a| !a));
+        let mut floor: Vec<[f32; 3]> = (0..3000).map(|_| [rng.unit() as f32, rng.unit() as f32, 0.0]).collect();
+        floor.extend((0..20).map(|_| [0.5 + 0.01 * rng.unit() as f32, 0.5, 0.05]));
+        assert!(apart(&floor).iter().all(|&a| !a));
     }
 
     #[test]

@@ -477,7 +477,7 @@ pub static TABLE: &[Setting] = &[
         key: "outliers",
         flag: "--outliers",
         label: "Drop stray points",
-        help: "drop points whose mean distance to their 20 nearest neighbours is more than this many times the median of the same over their 100 nearest (stray points; a sparse but even scan stays); off keeps every point",
+        help: "drop points whose mean distance to their 20 nearest neighbours is more than this many times the median of the same over their 100 nearest (stray points; a sparse but even scan stays), and the few points (at most 1 %) that lie apart beyond empty space wider than the rest of the cloud; off keeps every point",
         kind: Kind::Float { min: 1.0, max: 100.0 },
         default: Value::Num(2.0),
         can_be_off: true,
