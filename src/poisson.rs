@@ -16,7 +16,8 @@
 //! ```
 //!
 //! where V = Σ_i −n_i a_i δ_i / h³ (each point's normal times its share of the surface, splatted
-//! trilinearly onto the nodes: χ rises by about 1 from outside to inside), V̄_ab its mean at the
+//! trilinearly onto the nodes: χ rises by about 1 from outside to inside; on a noisy cloud onto a
+//! coarser grid's nodes and prolonged, a wider kernel: [`Options::splat_depth`]), V̄_ab its mean at the
 //! edge's two ends along the edge's axis, and χ(p) the trilinear interpolation. The points' term
 //! pins the zero level to them, so there is no iso-value to estimate. The normal equations
 //! `(DᵀD + α SᵀS) χ = Dᵀg` are solved by conjugate gradients preconditioned with one multigrid
@@ -102,11 +103,16 @@ pub struct Options {
     /// Stop when the residual is this fraction of the right-hand side's norm.
     pub tolerance: f64,
     pub max_iterations: usize,
+    /// The grid the points' normals are splatted on, in halvings of the finest (fractional: 0.5
+    /// splats half on the finest grid, half on the next coarser), the splat then prolonged onto
+    /// the finest: a wider kernel for the vector field the surface's gradient follows. 0 for
+    /// clean clouds; noisy ones get more ([`from_mesh`]).
+    pub splat_depth: f64,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { alpha: 8.0, tolerance: 1e-6, max_iterations: 100 }
+        Options { alpha: 8.0, tolerance: 1e-6, max_iterations: 100, splat_depth: 0.0 }
     }
 }
 
@@ -418,16 +424,72 @@ impl Multigrid {
     }
 }
 
-/// The right-hand side `Dᵀg` of the normal equations: each point's `−n_i · area_i` splatted
-/// onto the nodes (÷ h³), averaged along each edge, times h.
-fn right_hand_side(grid: &Grid, splat: &Splat, normals: &[[f32; 3]], areas: &[f64]) -> Vec<f64> {
+/// V's component along `axis` on the finest grid's nodes: each point's `−n_i · area_i` splatted
+/// on the grid `depths[i]` halvings coarser than the finest (fractional: shared between the two
+/// grids around it; past the coarsest, the coarsest) as a density (÷ that grid's h³), then
+/// prolonged trilinearly down to the finest, which carries a density unchanged.
+fn splatted(levels: &[Level], normals: &[[f32; 3]], areas: &[f64], depths: &[f64], axis: usize) -> Vec<f64> {
+    let last = (levels.len() - 1) as f64;
+    let top = depths.iter().map(|d| d.clamp(0.0, last).ceil() as usize).max().unwrap_or(0);
+    let mut v: Vec<f64> = Vec::new();
+    for l in (0..=top).rev() {
+        let level = &levels[l];
+        let mut here = if l == top { vec![0.0; level.grid.nodes()] } else { resample(&v, levels[l + 1].grid.side(), true) };
+        let scale = level.grid.h.powi(3);
+        let share = |d: f64| (1.0 - (d.clamp(0.0, last) - l as f64).abs()).max(0.0);
+        level.splat.scatter(normals.iter().zip(areas).zip(depths).map(|((n, a), &d)| -(n[axis] as f64) * a * share(d) / scale), &mut here);
+        v = here;
+    }
+    v
+}
+
+/// How much the normals agree around a point, for a splat on the grid `depth` halvings coarser
+/// ([`splat_depths`]): the length of their area-weighted sum over the sum of their areas, both
+/// splatted on that grid and read back at the point. About 0.9 or more on a noisy surface
+/// (normals tilted 20° at random: their mean cosine), 0.7 across a right-angled edge, near 0
+/// across a wall thinner than the grid's cell, whose faces' normals cancel.
+const AGREE: f64 = 0.75;
+
+/// Each point's splat depth: `depth` where the normals around it on that grid agree ([`AGREE`]),
+/// 0 (the finest grid) where they do not: a wider kernel averages a noisy surface's normals,
+/// but cancels a thin wall's two faces (a cup's wall 2.5 % of its height thick, which measures
+/// as noisy as σ 0.02 noise, lost most of its wall: CD1 x100 0.77 -> 1.24 at 3k).
+fn splat_depths(levels: &[Level], normals: &[[f32; 3]], areas: &[f64], depth: f64) -> Vec<f64> {
+    let depth = depth.clamp(0.0, (levels.len() - 1) as f64);
+    if depth == 0.0 {
+        return vec![0.0; normals.len()];
+    }
+    let level = &levels[depth.ceil() as usize];
+    let sum: [Vec<f64>; 3] = std::array::from_fn(|axis| {
+        let mut v = vec![0.0; level.grid.nodes()];
+        level.splat.scatter(normals.iter().zip(areas).map(|(n, a)| n[axis] as f64 * a), &mut v);
+        v
+    });
+    let mut weight = vec![0.0; level.grid.nodes()];
+    level.splat.scatter(areas.iter().copied(), &mut weight);
+    let at = |i: usize, v: &[f64]| -> f64 {
+        let b = level.splat.base[i] as usize;
+        (0..8).map(|c| level.splat.weights[i][c] * v[b + level.splat.corners[c]]).sum()
+    };
+    (0..normals.len())
+        .map(|i| {
+            let length = (0..3).map(|a| at(i, &sum[a]).powi(2)).sum::<f64>().sqrt();
+            let w = at(i, &weight);
+            if w > 0.0 && length >= AGREE * w { depth } else { 0.0 }
+        })
+        .collect()
+}
+
+/// The right-hand side `Dᵀg` of the normal equations: V ([`splatted`], `depth` halvings coarser
+/// than the finest grid where the normals agree: [`splat_depths`]) averaged along each edge,
+/// times h.
+fn right_hand_side(levels: &[Level], normals: &[[f32; 3]], areas: &[f64], depth: f64) -> Vec<f64> {
+    let grid = &levels[0].grid;
     let s = grid.side();
     let mut b = vec![0.0; grid.nodes()];
-    let mut v = vec![0.0; grid.nodes()];
+    let depths = splat_depths(levels, normals, areas, depth);
     for axis in 0..3 {
-        v.iter_mut().for_each(|x| *x = 0.0);
-        let scale = grid.h.powi(3);
-        splat.scatter(normals.iter().zip(areas).map(|(n, a)| -(n[axis] as f64) * a / scale), &mut v);
+        let v = splatted(levels, normals, areas, &depths, axis);
         let step = [1, s, s * s][axis];
         for z in 0..s {
             for y in 0..s {
@@ -454,7 +516,7 @@ pub fn solve(grid: Grid, points: &[[f32; 3]], normals: &[[f32; 3]], areas: &[f64
     assert!(grid.res >= 1, "poisson::solve: an empty grid");
     let mg = Multigrid::new(grid, points, opts.alpha);
     let fine = &mg.levels[0];
-    let b = right_hand_side(&grid, &fine.splat, normals, areas);
+    let b = right_hand_side(&mg.levels, normals, areas, opts.splat_depth);
     let norm_b = dot(&b, &b).sqrt();
     let mut x = vec![0.0; b.len()];
     if norm_b == 0.0 {
@@ -629,10 +691,18 @@ pub fn from_mesh(field_mesh: &crate::mesh::Mesh, points: &[[f32; 3]], grid: Grid
     // `FitOptions::for_cloud`). Clean scans measure below 1 and keep α. Chosen on the noisy
     // clouds (σ 0.02) of the tuning shapes (α 4 then, 128³ grid, `--fit-noise`): mean CD1 x100
     // 0.816 → 0.804, NC 0.739 → 0.759.
+    // And their normals are splatted wider, the kernel's width growing with the noise ratio (a
+    // grid log2(ratio) halvings coarser: twice as noisy, twice as wide), so that the field the
+    // surface's gradient follows averages the noisy normals over more of the surface, as a
+    // grid fitted to the noise would. Chosen on the tuning shapes' noisy clouds
+    // (`scripts/hard_clouds.py --noise-tuning`, σ 0.0075-0.02 at 3k and 10k, and the harder
+    // set's σ 0.02; docs/poisson.md "Noisy normals splatted wider"): log2(ratio) times 0.75, 1,
+    // 1.25, 1.5 and 2, and 1 the best.
     let mut opts = Options::default();
     let ratio = crate::mesh::fit::noise_ratio(points);
     if ratio > 1.0 {
         opts.alpha /= ratio * ratio;
+        opts.splat_depth = ratio.log2();
     }
     let (mut solution, (by_surface, rounds)) = resign(grid, points, &mut normals, &areas, &opts);
     let from_surface = ratio <= 1.0;
@@ -905,7 +975,7 @@ mod tests {
         let (points, normals, areas) = sphere(40, 0.3);
         let alpha = 0.7;
         let level = Level::new(grid, 1.0, &points, alpha);
-        let b = right_hand_side(&grid, &level.splat, &normals, &areas);
+        let b = right_hand_side(std::slice::from_ref(&level), &normals, &areas, 0.0);
         let v: [Vec<f64>; 3] = std::array::from_fn(|axis| {
             let mut v = vec![0.0; grid.nodes()];
             level.splat.scatter(normals.iter().zip(&areas).map(|(n, a)| -(n[axis] as f64) * a / grid.h.powi(3)), &mut v);
@@ -957,7 +1027,7 @@ mod tests {
             (0..n).for_each(|i| a[i * n + j] = col[i]);
         }
         let l = crate::krr::linalg::cholesky(&a, n, "test").unwrap();
-        let exact = crate::krr::linalg::cholesky_solve(&l, n, &right_hand_side(&grid, &level.splat, &normals, &areas), 1);
+        let exact = crate::krr::linalg::cholesky_solve(&l, n, &right_hand_side(std::slice::from_ref(&level), &normals, &areas, 0.0), 1);
         let err = exact.iter().zip(&sol.chi).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
         let scale = exact.iter().map(|v| v.abs()).fold(0.0, f64::max);
         assert!(err < 1e-8 * scale, "max difference {err} (scale {scale})");
@@ -1035,6 +1105,109 @@ mod tests {
         surface_directions(&first, &points, &mut normals);
         assert!(angle(&normals) < 0.3 * tilt, "mean angle {:.1}° after, {:.1}° before", angle(&normals).to_degrees(), tilt.to_degrees());
         assert!(normals.iter().zip(&truth).all(|(n, t)| (0..3).map(|a| n[a] * t[a]).sum::<f32>() > 0.5));
+    }
+
+    /// A splat on coarser grids keeps V's total (each point's `−n_i a_i` whole: the prolongation
+    /// carries a density) and spreads it wider: on a grid of 4 levels, the same sum at depths 0,
+    /// 0.5, 1, 2.5 and past the coarsest, and the spread about each point growing with depth.
+    #[test]
+    fn a_coarser_splat_keeps_the_normals_total_and_widens() {
+        let grid = Grid::over(([-0.55; 3], [0.55; 3]), 32);
+        // Five points near the middle, their normals along x.
+        let mut rng = crate::rng::SplitMix64(3);
+        let points: Vec<[f32; 3]> = (0..5).map(|_| [0, 1, 2].map(|_| (0.2 * rng.unit() - 0.1) as f32)).collect();
+        let normals = vec![[1.0f32, 0.0, 0.0]; points.len()];
+        let areas = vec![0.01; points.len()];
+        let levels = Multigrid::new(grid, &points, 8.0).levels;
+        assert_eq!(levels.len(), 4, "32, 16, 8 and 4 cells a side");
+        let total = -0.01 * points.len() as f64;
+        let mut spread = 0.0;
+        for depth in [0.0, 0.5, 1.0, 2.5, 7.0] {
+            let depths = vec![depth; points.len()];
+            assert_eq!(splat_depths(&levels, &normals, &areas, depth), depths.iter().map(|d| d.min(3.0)).collect::<Vec<_>>(), "normals that agree");
+            let v = splatted(&levels, &normals, &areas, &depths, 0);
+            assert!(splatted(&levels, &normals, &areas, &depths, 1).iter().all(|&c| c == 0.0));
+            let sum: f64 = v.iter().sum::<f64>() * grid.h.powi(3);
+            assert!((sum - total).abs() < 1e-12, "depth {depth}: {sum} against {total}");
+            // The mean squared distance of V's mass from the points' centroid.
+            let s = grid.side();
+            let c: [f64; 3] = std::array::from_fn(|a| points.iter().map(|p| p[a] as f64).sum::<f64>() / points.len() as f64);
+            let second = v.iter().enumerate().map(|(k, &w)| {
+                let x = [k % s, k / s % s, k / (s * s)].map(|i| i as f64 * grid.h);
+                w * (0..3).map(|a| (grid.lo[a] + x[a] - c[a]).powi(2)).sum::<f64>()
+            }).sum::<f64>() / v.iter().sum::<f64>();
+            assert!(second > spread, "depth {depth}: spread {second} not above {spread}");
+            spread = second;
+        }
+    }
+
+    /// The two faces of a wall thinner than the coarser grid's cell keep the finest splat (their
+    /// normals cancel there), and a noisy plate beside it, as thick, takes the wider one.
+    #[test]
+    fn a_thin_walls_faces_keep_the_finest_splat() {
+        let grid = Grid::over(([-0.55; 3], [0.55; 3]), 40);
+        let mut rng = crate::rng::SplitMix64(5);
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for _ in 0..2000 {
+            let (y, z) = ((0.6 * rng.unit() - 0.3) as f32, (0.6 * rng.unit() - 0.3) as f32);
+            // The wall at x = -0.2, 0.02 thick (under a cell of the 20³ grid, 0.055); the plate at
+            // x = 0.2, its points as far apart across it, all facing +x, tilted by the noise.
+            let side = if rng.unit() < 0.5 { -1.0f32 } else { 1.0 };
+            points.push([-0.2 + 0.01 * side, y, z]);
+            normals.push([side, 0.0, 0.0]);
+            points.push([0.2 + 0.01 * side, y, z]);
+            let t = [0.3 * rng.normal() as f32, 0.3 * rng.normal() as f32];
+            let l = (1.0 + t[0] * t[0] + t[1] * t[1]).sqrt();
+            normals.push([1.0 / l, t[0] / l, t[1] / l]);
+        }
+        let areas = vec![1e-4; points.len()];
+        let levels = Multigrid::new(grid, &points, 8.0).levels;
+        let depths = splat_depths(&levels, &normals, &areas, 1.0);
+        let wall = depths.iter().step_by(2).filter(|&&d| d == 0.0).count();
+        let plate = depths.iter().skip(1).step_by(2).filter(|&&d| d == 1.0).count();
+        assert!(wall >= 1990 && plate >= 1990, "{wall} of the wall's 2000 points on the finest grid, {plate} of the plate's on the coarser");
+    }
+
+    /// On a noisy sphere (points 0.01 off it, their normals tilted up to 20° at random), a wider
+    /// splat gives a surface nearer the sphere: the noisy normals averaged over more of it. α
+    /// and the depth as `from_mesh` sets them for a cloud twice as noisy as the eval clouds
+    /// (8 / 2², one halving): rms 0.0027 on the finest grid, 0.0023 one coarser.
+    #[test]
+    fn noisy_normals_splatted_wider_give_a_smoother_surface() {
+        let grid = Grid::over(([-0.55; 3], [0.55; 3]), 40);
+        let (points, truth, areas) = sphere(3000, 0.3);
+        let mut rng = crate::rng::SplitMix64(11);
+        let tilt = 20f32.to_radians();
+        let points: Vec<[f32; 3]> = points.iter().zip(&truth).map(|(p, n)| {
+            let e = 0.01 * rng.normal() as f32;
+            std::array::from_fn(|a| p[a] + e * n[a])
+        }).collect();
+        let normals: Vec<[f32; 3]> = truth.iter().map(|n| {
+            let r = [rng.normal() as f32, rng.normal() as f32, rng.normal() as f32];
+            let d = (0..3).map(|a| r[a] * n[a]).sum::<f32>();
+            let t: [f32; 3] = std::array::from_fn(|a| r[a] - d * n[a]);
+            let l = t.iter().map(|c| c * c).sum::<f32>().sqrt();
+            let u = tilt * rng.unit() as f32;
+            std::array::from_fn(|a| u.cos() * n[a] + u.sin() * t[a] / l)
+        }).collect();
+        // The rms distance of the zero level from the sphere along 200 rays from its centre.
+        let rms = |depth: f64| {
+            let sol = solve(grid, &points, &normals, &areas, &Options { splat_depth: depth, alpha: 2.0, ..Default::default() });
+            let (rays, _, _) = sphere(200, 1.0);
+            let sq: f32 = rays.iter().map(|r| {
+                let dir = r.map(|c| c - 0.05);
+                let at = |t: f32| sol.value(std::array::from_fn(|a| 0.05 + t * dir[a]));
+                let (mut lo, mut hi) = (0.15f32, 0.45f32);
+                for _ in 0..40 {
+                    let mid = 0.5 * (lo + hi);
+                    if at(mid) > 0.0 { lo = mid } else { hi = mid }
+                }
+                (lo - 0.3).powi(2)
+            }).sum();
+            (sq / rays.len() as f32).sqrt()
+        };
+        let (fine, wider) = (rms(0.0), rms(1.0));
+        assert!(wider < 0.9 * fine, "rms {wider} with the wider splat against {fine}");
     }
 
     /// A plate thinner than a cell, its two faces' normals right: χ cannot show its inside two
