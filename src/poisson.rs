@@ -125,6 +125,9 @@ pub struct Solution {
     pub iterations: usize,
     /// The final residual over the right-hand side's norm.
     pub residual: f64,
+    /// The points whose normals were splatted on a coarser grid, and how many times the finest
+    /// grid's cell that grid's is ([`Options::splat_depth`]; 0 and 1 when none).
+    pub wider: (usize, f64),
 }
 
 impl Solution {
@@ -145,6 +148,8 @@ impl Solution {
             _ => format!(", {by_surface} then turned by the surface itself in {rounds} more solves"),
         };
         let resigned = if from_surface { format!("{resigned}; their directions then taken from the surface, solved once more") } else { resigned };
+        let (wider, times) = self.wider;
+        let resigned = if wider > 0 { format!("{resigned}; {wider} of them splatted {times:.1} times wider, as the cloud is noisy") } else { resigned };
         format!(
             "the mesh is a screened Poisson surface through the {points} points, their normals oriented by the field's mesh ({by_field} turned{resigned}): {}³ grid, {} multigrid iterations (residual {:.1e}{how}); --surface field (\"Surface\": the field's level set) meshes the field itself",
             self.grid.res, self.iterations, self.residual
@@ -482,8 +487,8 @@ fn splat_depths(levels: &[Level], normals: &[[f32; 3]], areas: &[f64], depth: f6
 
 /// The right-hand side `Dᵀg` of the normal equations: V ([`splatted`], `depth` halvings coarser
 /// than the finest grid where the normals agree: [`splat_depths`]) averaged along each edge,
-/// times h.
-fn right_hand_side(levels: &[Level], normals: &[[f32; 3]], areas: &[f64], depth: f64) -> Vec<f64> {
+/// times h; and how many points were splatted wider, how many times wider.
+fn right_hand_side(levels: &[Level], normals: &[[f32; 3]], areas: &[f64], depth: f64) -> (Vec<f64>, (usize, f64)) {
     let grid = &levels[0].grid;
     let s = grid.side();
     let mut b = vec![0.0; grid.nodes()];
@@ -506,7 +511,9 @@ fn right_hand_side(levels: &[Level], normals: &[[f32; 3]], areas: &[f64], depth:
             }
         }
     }
-    b
+    let wider = depths.iter().filter(|&&d| d > 0.0).count();
+    let times = depths.iter().copied().fold(0.0, f64::max).exp2();
+    (b, (wider, times))
 }
 
 /// Solves for χ on `grid` from `points` with outward unit `normals` and surface shares
@@ -516,11 +523,11 @@ pub fn solve(grid: Grid, points: &[[f32; 3]], normals: &[[f32; 3]], areas: &[f64
     assert!(grid.res >= 1, "poisson::solve: an empty grid");
     let mg = Multigrid::new(grid, points, opts.alpha);
     let fine = &mg.levels[0];
-    let b = right_hand_side(&mg.levels, normals, areas, opts.splat_depth);
+    let (b, wider) = right_hand_side(&mg.levels, normals, areas, opts.splat_depth);
     let norm_b = dot(&b, &b).sqrt();
     let mut x = vec![0.0; b.len()];
     if norm_b == 0.0 {
-        return Solution { grid, chi: x, iterations: 0, residual: 0.0 };
+        return Solution { grid, chi: x, iterations: 0, residual: 0.0, wider };
     }
     // Preconditioned conjugate gradients from χ = 0.
     let mut r = b;
@@ -546,7 +553,7 @@ pub fn solve(grid: Grid, points: &[[f32; 3]], normals: &[[f32; 3]], areas: &[f64
         rz = rz_next;
         p.iter_mut().zip(&z).for_each(|(p, z)| *p = z + beta * *p);
     }
-    Solution { grid, chi: x, iterations, residual }
+    Solution { grid, chi: x, iterations, residual, wider }
 }
 
 /// Neighbours of each point for its PCA normal (the prototype's 30; the nearest
@@ -975,7 +982,7 @@ mod tests {
         let (points, normals, areas) = sphere(40, 0.3);
         let alpha = 0.7;
         let level = Level::new(grid, 1.0, &points, alpha);
-        let b = right_hand_side(std::slice::from_ref(&level), &normals, &areas, 0.0);
+        let (b, _) = right_hand_side(std::slice::from_ref(&level), &normals, &areas, 0.0);
         let v: [Vec<f64>; 3] = std::array::from_fn(|axis| {
             let mut v = vec![0.0; grid.nodes()];
             level.splat.scatter(normals.iter().zip(&areas).map(|(n, a)| -(n[axis] as f64) * a / grid.h.powi(3)), &mut v);
@@ -1027,7 +1034,7 @@ mod tests {
             (0..n).for_each(|i| a[i * n + j] = col[i]);
         }
         let l = crate::krr::linalg::cholesky(&a, n, "test").unwrap();
-        let exact = crate::krr::linalg::cholesky_solve(&l, n, &right_hand_side(std::slice::from_ref(&level), &normals, &areas, 0.0), 1);
+        let exact = crate::krr::linalg::cholesky_solve(&l, n, &right_hand_side(std::slice::from_ref(&level), &normals, &areas, 0.0).0, 1);
         let err = exact.iter().zip(&sol.chi).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
         let scale = exact.iter().map(|v| v.abs()).fold(0.0, f64::max);
         assert!(err < 1e-8 * scale, "max difference {err} (scale {scale})");
@@ -1282,7 +1289,7 @@ mod tests {
         for (i, c) in chi.iter_mut().enumerate() {
             *c = q([i % s, i / s % s, i / (s * s)].map(|k| -0.5 + k as f64 * grid.h));
         }
-        let sol = Solution { grid, chi, iterations: 0, residual: 0.0 };
+        let sol = Solution { grid, chi, iterations: 0, residual: 0.0, wider: (0, 1.0) };
         let mut rng = crate::rng::SplitMix64(7);
         for _ in 0..200 {
             let p = [0; 3].map(|_| (-0.35 + 0.7 * rng.unit()) as f32);
