@@ -954,6 +954,15 @@ mod tests {
         (points, normals, vec![area; n])
     }
 
+    /// A unit vector square to the unit `n`, in a random direction.
+    fn square_to(n: &[f32; 3], rng: &mut crate::rng::SplitMix64) -> [f32; 3] {
+        let r = [rng.normal() as f32, rng.normal() as f32, rng.normal() as f32];
+        let d = (0..3).map(|a| r[a] * n[a]).sum::<f32>();
+        let t: [f32; 3] = std::array::from_fn(|a| r[a] - d * n[a]);
+        let l = t.iter().map(|c| c * c).sum::<f32>().sqrt();
+        t.map(|c| c / l)
+    }
+
     fn energy(grid: &Grid, splat: &Splat, v: &[Vec<f64>; 3], alpha: f64, x: &[f64]) -> f64 {
         let s = grid.side();
         let mut e = 0.0;
@@ -1097,12 +1106,8 @@ mod tests {
         let mut normals: Vec<[f32; 3]> = truth
             .iter()
             .map(|n| {
-                // A unit vector square to n, in a random direction.
-                let r = [rng.normal() as f32, rng.normal() as f32, rng.normal() as f32];
-                let d = (0..3).map(|a| r[a] * n[a]).sum::<f32>();
-                let t: [f32; 3] = std::array::from_fn(|a| r[a] - d * n[a]);
-                let l = t.iter().map(|c| c * c).sum::<f32>().sqrt();
-                std::array::from_fn(|a| tilt.cos() * n[a] + tilt.sin() * t[a] / l)
+                let t = square_to(n, &mut rng);
+                std::array::from_fn(|a| tilt.cos() * n[a] + tilt.sin() * t[a])
             })
             .collect();
         let angle = |n: &[[f32; 3]]| (0..n.len()).map(|i| (0..3).map(|a| n[i][a] * truth[i][a]).sum::<f32>().clamp(-1.0, 1.0).acos()).sum::<f32>() / n.len() as f32;
@@ -1190,12 +1195,9 @@ mod tests {
             std::array::from_fn(|a| p[a] + e * n[a])
         }).collect();
         let normals: Vec<[f32; 3]> = truth.iter().map(|n| {
-            let r = [rng.normal() as f32, rng.normal() as f32, rng.normal() as f32];
-            let d = (0..3).map(|a| r[a] * n[a]).sum::<f32>();
-            let t: [f32; 3] = std::array::from_fn(|a| r[a] - d * n[a]);
-            let l = t.iter().map(|c| c * c).sum::<f32>().sqrt();
+            let t = square_to(n, &mut rng);
             let u = tilt * rng.unit() as f32;
-            std::array::from_fn(|a| u.cos() * n[a] + u.sin() * t[a] / l)
+            std::array::from_fn(|a| u.cos() * n[a] + u.sin() * t[a])
         }).collect();
         // The rms distance of the zero level from the sphere along 200 rays from its centre.
         let rms = |depth: f64| {
