@@ -450,12 +450,19 @@ impl Viewer {
         self.show_wire = on;
     }
 
-    /// Frames the current content (the cloud and the mesh together).
+    /// Frames the content shown (the cloud, the mesh, or both together; all of it when neither
+    /// is shown): with the cloud hidden, the mesh alone, so that points the run dropped far
+    /// from the object (`outliers::apart`) do not leave the mesh a dot in the view.
     pub fn fit(&mut self) {
+        let shown_mesh = self.show_mesh || self.show_wire;
+        let (cloud, mesh) = match (self.show_cloud && self.cloud.is_some(), shown_mesh && !self.mesh.is_empty()) {
+            (false, false) => (true, true),
+            shown => shown,
+        };
         let spheres = [
-            self.cloud.as_ref().map(|c| (c.center, c.radius)),
+            self.cloud.as_ref().filter(|_| cloud).map(|c| (c.center, c.radius)),
         ];
-        let mut it = spheres.into_iter().flatten().chain(self.mesh.iter().map(|m| (m.center, m.radius)));
+        let mut it = spheres.into_iter().flatten().chain(self.mesh.iter().filter(|_| mesh).map(|m| (m.center, m.radius)));
         let Some(first) = it.next() else { return };
         let (center, radius) = it.fold(first, |(c0, r0), (c1, r1)| {
             // The smallest sphere holding both.

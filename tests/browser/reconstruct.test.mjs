@@ -322,6 +322,42 @@ test('a share link loads the cloud from its URL with its settings, and runs', { 
   }
 });
 
+test('a few points far from the object are dropped and said; Fit frames the mesh once the cloud is hidden', { timeout: RUN_TIMEOUT + 120_000 }, async () => {
+  // A sphere of 3,000 points and 30 in a tight cluster 50 radii away (text: x y z per line).
+  const lines = [];
+  let seed = 7;
+  const rand = () => ((seed = (seed * 1103515245 + 12345) % 2147483648) / 2147483648);
+  for (let i = 0; i < 3000; i++) {
+    const z = 1 - 2 * (i + 0.5) / 3000, r = Math.sqrt(1 - z * z), t = i * Math.PI * (3 - Math.sqrt(5));
+    lines.push(`${r * Math.cos(t)} ${r * Math.sin(t)} ${z}`);
+  }
+  for (let i = 0; i < 30; i++) lines.push(`${50 + 0.01 * rand()} ${50 + 0.01 * rand()} ${50 + 0.01 * rand()}`);
+  const file = path.join(os.tmpdir(), `nkrr-far-cluster-${process.pid}.xyz`);
+  fs.writeFileSync(file, lines.join('\n') + '\n');
+  const far = await serve(DIST, { '/data/far.xyz': file });
+  const b = await browser();
+  try {
+    const { page, errors } = await newPage(b, `${far.url}/?cloud=/data/far.xyz&method=network&resolution=64&run`);
+    await page.waitForFunction(() => document.body.dataset.outcome, null, { timeout: RUN_TIMEOUT, polling: 250 });
+    assert.equal(await page.evaluate(() => document.body.dataset.outcome), 'done', await page.textContent('#message'));
+    assert.match(await page.evaluate(() => document.body.innerText), /dropped 30 of 3030 points that lie apart from the rest/);
+    const triangles = Number((await page.textContent('#r-triangles')).replace(/\D/g, ''));
+    assert.ok(triangles > 5000, `${triangles} triangles: the sphere, not a blob`);
+    // The view still frames the whole cloud, the sphere a dot in it; with the cloud hidden, Fit
+    // frames the mesh.
+    await page.uncheck('#show-cloud');
+    const before = await page.evaluate(() => window.nkrrViewer.coverage());
+    await page.click('#fit-view');
+    const after = await page.evaluate(() => window.nkrrViewer.coverage());
+    assert.ok(before < 0.01 && after > 0.05, `mesh coverage ${before} before Fit, ${after} after`);
+    assert.deepEqual(errors, []);
+  } finally {
+    await b.close();
+    far.server.close();
+    fs.rmSync(file, { force: true });
+  }
+});
+
 test('the embedding example reconstructs through the ES module (web/reconstructor.js)', { timeout: RUN_TIMEOUT + 120_000 }, async () => {
   const b = await browser();
   try {
