@@ -24,6 +24,18 @@ pub struct Bounds {
 }
 
 impl Bounds {
+    /// Bounds of `points`, or `None` when there are none.
+    pub fn of(points: &[[f32; 3]]) -> Option<Bounds> {
+        let first = *points.first()?;
+        let mut b = Bounds { min: first, max: first };
+        for p in points {
+            for a in 0..3 {
+                b.min[a] = b.min[a].min(p[a]);
+                b.max[a] = b.max[a].max(p[a]);
+            }
+        }
+        Some(b)
+    }
     pub fn extent(&self) -> [f32; 3] {
         [self.max[0] - self.min[0], self.max[1] - self.min[1], self.max[2] - self.min[2]]
     }
@@ -49,15 +61,7 @@ impl PointCloud {
     }
     /// Bounds of the positions (relative to `origin`), or `None` for an empty cloud.
     pub fn bounds(&self) -> Option<Bounds> {
-        let first = *self.positions.first()?;
-        let mut b = Bounds { min: first, max: first };
-        for p in &self.positions {
-            for a in 0..3 {
-                b.min[a] = b.min[a].min(p[a]);
-                b.max[a] = b.max[a].max(p[a]);
-            }
-        }
-        Some(b)
+        Bounds::of(&self.positions)
     }
 }
 

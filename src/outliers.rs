@@ -17,6 +17,7 @@
 //! would shrink inside the network's unit cube; and the network, which never saw stray points
 //! in training, turns each cluster of them into a floating blob.
 
+use crate::cloud::Bounds;
 use crate::sample::PointIndex;
 
 /// Neighbours whose mean distance scores a point (Open3D's usual 20).
@@ -218,7 +219,7 @@ pub fn apart(points: &[[f32; 3]]) -> Vec<bool> {
         // beyond it, on each side.
         let wide = |i: usize| xs[i + 1] - xs[i] > bulk;
         let above = (n / 2..n - 1).find(|&i| wide(i) && n - 1 - i <= most).map(|i| xs[i]);
-        let below = (0..n / 2).rev().find(|&i| wide(i) && i + 1 <= most).map(|i| xs[i + 1]);
+        let below = (0..n / 2).rev().find(|&i| wide(i) && i < most).map(|i| xs[i + 1]);
         for (p, away) in points.iter().zip(away.iter_mut()) {
             *away |= above.is_some_and(|hi| p[a] > hi) || below.is_some_and(|lo| p[a] < lo);
         }
@@ -234,20 +235,9 @@ fn drop_apart(points: Vec<[f32; 3]>) -> (Vec<[f32; 3]>, Option<String>) {
         return (points, None);
     }
     let total = points.len();
-    let (kept, gone): (Vec<_>, Vec<_>) = points.into_iter().zip(away).partition(|(_, a)| !*a);
-    let kept: Vec<[f32; 3]> = kept.into_iter().map(|(p, _)| p).collect();
-    let side = |ps: &mut dyn Iterator<Item = [f32; 3]>| {
-        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for p in ps {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
-        (0..3).map(|a| hi[a] - lo[a]).fold(0.0f32, f32::max)
-    };
-    let rest = side(&mut kept.iter().copied());
-    let all = side(&mut kept.iter().copied().chain(gone.iter().map(|(p, _)| *p)));
+    let all = Bounds::of(&points).map_or(0.0, |b| b.longest_side());
+    let kept: Vec<[f32; 3]> = points.into_iter().zip(away).filter(|(_, a)| !*a).map(|(p, _)| p).collect();
+    let rest = Bounds::of(&kept).map_or(0.0, |b| b.longest_side());
     let notice = format!(
         "dropped {went} of {total} points that lie apart from the rest, beyond empty space wider than the rest of the cloud \
          (they stretched its extent from {rest:.4} to {all:.4} units, which would shrink the object in the reconstruction): \

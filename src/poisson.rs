@@ -201,12 +201,17 @@ impl Splat {
         Splat { base, weights, corners: grid.corners() }
     }
 
+    /// `x` trilinearly interpolated at point `i`: row i of `S x`.
+    fn at(&self, i: usize, x: &[f64]) -> f64 {
+        let (b, w) = (self.base[i] as usize, &self.weights[i]);
+        (0..8).map(|c| w[c] * x[b + self.corners[c]]).sum()
+    }
+
     /// `y += α SᵀS x`.
     fn add_screening(&self, alpha: f64, x: &[f64], y: &mut [f64]) {
-        for (&b, w) in self.base.iter().zip(&self.weights) {
-            let b = b as usize;
-            let v: f64 = (0..8).map(|c| w[c] * x[b + self.corners[c]]).sum();
-            (0..8).for_each(|c| y[b + self.corners[c]] += alpha * w[c] * v);
+        for (i, (&b, w)) in self.base.iter().zip(&self.weights).enumerate() {
+            let v = self.at(i, x);
+            (0..8).for_each(|c| y[b as usize + self.corners[c]] += alpha * w[c] * v);
         }
     }
 
@@ -472,14 +477,10 @@ fn splat_depths(levels: &[Level], normals: &[[f32; 3]], areas: &[f64], depth: f6
     });
     let mut weight = vec![0.0; level.grid.nodes()];
     level.splat.scatter(areas.iter().copied(), &mut weight);
-    let at = |i: usize, v: &[f64]| -> f64 {
-        let b = level.splat.base[i] as usize;
-        (0..8).map(|c| level.splat.weights[i][c] * v[b + level.splat.corners[c]]).sum()
-    };
     (0..normals.len())
         .map(|i| {
-            let length = (0..3).map(|a| at(i, &sum[a]).powi(2)).sum::<f64>().sqrt();
-            let w = at(i, &weight);
+            let length = (0..3).map(|a| level.splat.at(i, &sum[a]).powi(2)).sum::<f64>().sqrt();
+            let w = level.splat.at(i, &weight);
             if w > 0.0 && length >= AGREE * w { depth } else { 0.0 }
         })
         .collect()

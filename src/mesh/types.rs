@@ -37,15 +37,7 @@ impl Mesh {
 
     /// Bounds of all positions (used or not), or `None` without positions.
     pub fn bounds(&self) -> Option<Bounds> {
-        let first = *self.positions.first()?;
-        let mut b = Bounds { min: first, max: first };
-        for p in &self.positions {
-            for (a, &x) in p.iter().enumerate() {
-                b.min[a] = b.min[a].min(x);
-                b.max[a] = b.max[a].max(x);
-            }
-        }
-        Some(b)
+        Bounds::of(&self.positions)
     }
 
     /// Replaces `normals` with area-weighted vertex normals (see [`area_weighted_normals`]).
