@@ -196,10 +196,23 @@ pub const APART_SHARE: f64 = 0.01;
 /// wider than the object itself is what no scan of one object holds, however its density falls
 /// (a sparse end's points leave gaps of about their spacing).
 pub fn apart(points: &[[f32; 3]]) -> Vec<bool> {
+    let slabs = slabs(points);
+    points.iter().map(|p| !within(&slabs, p)).collect()
+}
+
+/// Per axis, where the part lying [`apart`] begins below and above, if anywhere.
+type Slabs = [(Option<f32>, Option<f32>); 3];
+
+fn within(slabs: &Slabs, p: &[f32; 3]) -> bool {
+    (0..3).all(|a| slabs[a].0.is_none_or(|lo| p[a] >= lo) && slabs[a].1.is_none_or(|hi| p[a] <= hi))
+}
+
+/// The slabs of [`apart`] found on `points`.
+fn slabs(points: &[[f32; 3]]) -> Slabs {
     let n = points.len();
-    let mut away = vec![false; n];
+    let mut slabs: Slabs = [(None, None); 3];
     if n < 20 {
-        return away;
+        return slabs;
     }
     let sorted: Vec<Vec<f32>> = (0..3)
         .map(|a| {
@@ -211,20 +224,41 @@ pub fn apart(points: &[[f32; 3]]) -> Vec<bool> {
     let at = |xs: &[f32], q: f64| xs[(q * (n - 1) as f64).round() as usize];
     let bulk = sorted.iter().map(|xs| at(xs, 0.95) - at(xs, 0.05)).fold(0.0f32, f32::max);
     if bulk <= 0.0 {
-        return away;
+        return slabs;
     }
     let most = (APART_SHARE * n as f64).floor() as usize;
     for (a, xs) in sorted.iter().enumerate() {
         // From the median outwards, the first slab wider than the bulk with few enough points
         // beyond it, on each side.
         let wide = |i: usize| xs[i + 1] - xs[i] > bulk;
-        let above = (n / 2..n - 1).find(|&i| wide(i) && n - 1 - i <= most).map(|i| xs[i]);
-        let below = (0..n / 2).rev().find(|&i| wide(i) && i < most).map(|i| xs[i + 1]);
-        for (p, away) in points.iter().zip(away.iter_mut()) {
-            *away |= above.is_some_and(|hi| p[a] > hi) || below.is_some_and(|lo| p[a] < lo);
-        }
+        // Each bound is the slab's middle, so that a sample's slab holds the whole cloud's too.
+        let middle = |i: usize| 0.5 * (xs[i] + xs[i + 1]);
+        let below = (0..n / 2).rev().find(|&i| wide(i) && i < most).map(middle);
+        let above = (n / 2..n - 1).find(|&i| wide(i) && n - 1 - i <= most).map(middle);
+        slabs[a] = (below, above);
     }
-    away
+    slabs
+}
+
+/// The most points [`bulk_bounds`] sorts: a uniform sample of a larger cloud finds the same
+/// slabs (the part apart is a share of the points, the slab wider than the whole object).
+const BULK_SAMPLE: usize = 1 << 18;
+
+/// The bounds of `points` without those lying [`apart`] (found on a uniform sample of at most
+/// [`BULK_SAMPLE`] of them): the object's own size. What the size decides before the filter
+/// runs (the units a file's numbers suggest, whether a cloud is a scene to tile) must not be
+/// decided by a reflection 50 object-lengths away: a 20 cm part with a handful of such points
+/// in a metre-stated file was tiled as a 10 m scene, and in unstated units its size suggested
+/// millimetres. Points must be finite.
+pub fn bulk_bounds(points: &[[f32; 3]]) -> Option<Bounds> {
+    // A uniform sample, not every k-th point: a file's order can be periodic (scan lines).
+    let slabs = slabs(&crate::cloud::subsample(points, BULK_SAMPLE, 0x6275_6c6b));
+    points.iter().filter(|p| within(&slabs, p)).fold(None, |b: Option<Bounds>, p| {
+        Some(b.map_or(Bounds { min: *p, max: *p }, |b| Bounds {
+            min: [0, 1, 2].map(|a| b.min[a].min(p[a])),
+            max: [0, 1, 2].map(|a| b.max[a].max(p[a])),
+        }))
+    })
 }
 
 /// `points` without those that lie [`apart`], and a notice of how many went and how far.
@@ -445,6 +479,22 @@ mod tests {
         // More than APART_SHARE of the points apart (a second object): they stay.
         pts.extend((0..30).map(|_| [0, 1, 2].map(|_| (50.0 + 0.01 * rng.normal()) as f32)));
         assert_eq!(apart(&pts).iter().filter(|&&a| a).count(), 1, "only the lone point at x = -40");
+    }
+
+    #[test]
+    fn the_bulk_bounds_are_the_objects_whatever_lies_apart_and_however_many_points() {
+        let mut rng = SplitMix64(5);
+        for n in [3000, 3 * BULK_SAMPLE] {
+            let mut pts: Vec<[f32; 3]> = (0..n).map(|_| on_sphere(&mut rng).map(|c| c as f32)).collect();
+            let sphere = Bounds::of(&pts).unwrap();
+            // A cluster 50 radii away, 0.5 % of the points, every 200th in the file's order (a
+            // period that a sample of every k-th point would alias).
+            pts = pts.chunks(199).flat_map(|c| std::iter::once([0, 1, 2].map(|_| (50.0 + 0.01 * rng.normal()) as f32)).chain(c.iter().copied())).collect();
+            assert!(Bounds::of(&pts).unwrap().longest_side() > 40.0);
+            assert_eq!(bulk_bounds(&pts), Some(sphere), "{n} points");
+        }
+        assert_eq!(bulk_bounds(&[]), None);
+        assert_eq!(bulk_bounds(&[[1.0, 2.0, 3.0]]), Some(Bounds { min: [1.0, 2.0, 3.0], max: [1.0, 2.0, 3.0] }));
     }
 
     #[test]

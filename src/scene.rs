@@ -115,8 +115,7 @@ pub fn decide_sample(points: &[[f32; 3]], weight: f64, settings: &Settings, scal
         return None;
     }
     let to_m = settings.units.or(scale.units).map_or(1.0, |u| u.metres());
-    let (lo, hi) = bounds(points);
-    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    let extent = span(points, settings);
     let known = scale.stated || settings.units.is_some();
     let many = (points.len() as f64 * weight) as usize >= UNSTATED_SCENE_POINTS;
     let why = match settings.tiles {
@@ -139,6 +138,14 @@ pub fn decide_sample(points: &[[f32; 3]], weight: f64, settings: &Settings, scal
     Some(plan)
 }
 
+/// The longest side of what will be reconstructed of `points`, in file units: without the few
+/// points lying apart that the stray-point filter drops ([`crate::outliers::bulk_bounds`]), when
+/// it is on. A reflection metres from a part does not make the part a scene.
+fn span(points: &[[f32; 3]], settings: &Settings) -> f64 {
+    let bounds = if settings.outliers.is_some() { crate::outliers::bulk_bounds(points) } else { crate::cloud::Bounds::of(points) };
+    bounds.map_or(0.0, |b| b.longest_side() as f64)
+}
+
 /// A sentence for a cloud that `tiles auto` keeps whole though it may be a scene: it spans
 /// [`SCENE_EXTENT_M`] or more in units its file does not state, with enough points for several
 /// tiles. None otherwise.
@@ -147,7 +154,7 @@ pub fn hint(cloud: &PointCloud, settings: &Settings, scale: Scale) -> Option<Str
         return None;
     }
     let to_m = settings.units.or(scale.units).map_or(1.0, |u| u.metres());
-    let extent = cloud.bounds()?.longest_side() as f64 * to_m;
+    let extent = span(&cloud.positions, settings) * to_m;
     (extent >= SCENE_EXTENT_M).then(|| {
         format!("the cloud spans {extent:.1} m if its units are metres, and is reconstructed as one object; if it is a room, a facade or a street, --tiles on reconstructs it in tiles")
     })

@@ -200,6 +200,33 @@ fn tiles_blend_into_one_mesh_without_cracks_and_keep_the_object() {
     assert!(on_ball as f32 > 0.5 * upper_area / (spacing * spacing), "{on_ball} vertices on the ball after");
 }
 
+/// A part with a reflection metres away (a handful of points the stray-point filter drops) is
+/// sized by the part: one object, not a scene to tile, and its units guessed from its own size.
+#[test]
+fn a_reflection_far_from_a_part_decides_neither_its_units_nor_its_tiles() {
+    // A ball 20 cm across, 3,000 points, and 20 points 30 m away: 30 units across would suggest
+    // millimetres.
+    let mut text = String::new();
+    let mut positions = Vec::new();
+    for i in 0..3000 {
+        let (z, t) = (1.0 - 2.0 * (i as f32 + 0.5) / 3000.0, i as f32 * 2.399_963);
+        let r = (1.0 - z * z).sqrt();
+        positions.push([0.1 * r * t.cos(), 0.1 * r * t.sin(), 0.1 * z]);
+    }
+    positions.extend((0..20).map(|i| [30.0 + 0.001 * i as f32, 0.0, 0.0]));
+    for p in &positions {
+        text.push_str(&format!("{} {} {}\n", p[0], p[1], p[2]));
+    }
+    let scan = nkrr::io::read_cloud(text.as_bytes(), None).unwrap();
+    let g = scan.units_guess();
+    assert!(!g.warn && g.units != Some(Units::Millimetres), "{g:?}");
+    let part = PointCloud { positions, ..Default::default() };
+    let metres = Scale { units: Some(Units::Metres), stated: true };
+    assert!(nkrr::scene::decide(&part, &Settings::default(), metres).is_none());
+    // Kept (--keep-outliers), the reflection is part of what is reconstructed: 30 m, a scene.
+    assert!(nkrr::scene::decide(&part, &Settings { outliers: None, ..Settings::default() }, metres).is_some());
+}
+
 /// The eval clouds (PLY without units, 3-10 units across, 3k-10k points) are objects: `tiles
 /// auto` keeps them whole, so their meshes are the one-object path's (docs/results.md).
 #[test]

@@ -88,14 +88,22 @@ impl ScanFile {
 
     /// What the cloud's size, or the file's own statement, suggests about its units.
     pub fn units_guess(&self) -> crate::units::UnitsGuess {
-        let longest = self.cloud.bounds().map_or(0.0, |b| b.longest_side() as f64);
         // LAS is a geospatial format: without a coordinate system nkrr reads, its numbers are
         // taken as metres (the reader's note says so), whatever the size.
         if self.format == ScanFormat::Las && self.stated_units.is_none() {
             let reason = "LAS coordinates without a coordinate system nkrr reads are taken as metres".to_string();
             return crate::units::UnitsGuess { units: Some(crate::units::Units::Metres), reason, warn: false, stated: true };
         }
-        crate::units::guess(longest, self.stated_units)
+        // The object's size, not a reflection's distance from it (the points lying apart, which
+        // the stray-point filter drops, stretch the box by any factor).
+        let side = |b: Option<crate::cloud::Bounds>| b.map_or(0.0, |b| b.longest_side() as f64);
+        let longest = side(crate::outliers::bulk_bounds(&self.cloud.positions));
+        let mut g = crate::units::guess(longest, self.stated_units);
+        let all = side(self.cloud.bounds());
+        if !g.stated && all > longest {
+            g.reason.push_str(&format!(" (without the few points lying apart from the rest; with them {all:.4})"));
+        }
+        g
     }
 
     /// Things the user should know before reconstructing, one sentence each.
