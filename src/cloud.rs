@@ -26,7 +26,12 @@ pub struct Bounds {
 impl Bounds {
     /// Bounds of `points`, or `None` when there are none.
     pub fn of(points: &[[f32; 3]]) -> Option<Bounds> {
-        let first = *points.first()?;
+        Bounds::of_iter(points)
+    }
+    /// [`Bounds::of`] for points chosen on the way (a filter), without collecting them.
+    pub fn of_iter<'a>(points: impl IntoIterator<Item = &'a [f32; 3]>) -> Option<Bounds> {
+        let mut points = points.into_iter();
+        let first = *points.next()?;
         let mut b = Bounds { min: first, max: first };
         for p in points {
             for a in 0..3 {

@@ -253,12 +253,7 @@ const BULK_SAMPLE: usize = 1 << 18;
 pub fn bulk_bounds(points: &[[f32; 3]]) -> Option<Bounds> {
     // A uniform sample, not every k-th point: a file's order can be periodic (scan lines).
     let slabs = slabs(&crate::cloud::subsample(points, BULK_SAMPLE, 0x6275_6c6b));
-    points.iter().filter(|p| within(&slabs, p)).fold(None, |b: Option<Bounds>, p| {
-        Some(b.map_or(Bounds { min: *p, max: *p }, |b| Bounds {
-            min: [0, 1, 2].map(|a| b.min[a].min(p[a])),
-            max: [0, 1, 2].map(|a| b.max[a].max(p[a])),
-        }))
-    })
+    Bounds::of_iter(points.iter().filter(|p| within(&slabs, p)))
 }
 
 /// `points` without those that lie [`apart`], and a notice of how many went and how far.

@@ -136,6 +136,8 @@ fn info(args: &[String]) -> Result<(), Failure> {
     let settings = p.settings;
     let (bytes, scan) = read_scan(&path)?;
     let cloud = &scan.cloud;
+    // Once: the guess sorts a sample of the cloud (the points lying apart left out).
+    let guess = scan.units_guess();
     say!("file:       {path} ({} bytes)", bytes.len());
     say!("format:     {}", scan.layout);
     say!("points:     {} (in the file: {})", cloud.len(), scan.declared);
@@ -151,7 +153,7 @@ fn info(args: &[String]) -> Result<(), Failure> {
             say!("bounds:     [{}, {}, {}] .. [{}, {}, {}]", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]);
         }
         say!("extent:     {} x {} x {}", e[0], e[1], e[2]);
-        let g = scan.units_guess();
+        let g = &guess;
         let given = settings.units.map(|u| format!("{u} (given)"));
         say!(
             "units:      {}: {}",
@@ -183,7 +185,7 @@ fn info(args: &[String]) -> Result<(), Failure> {
     if scan.comments.len() > COMMENTS_SHOWN {
         say!("comment:    … and {} more comments", scan.comments.len() - COMMENTS_SHOWN);
     }
-    let scale = nkrr::scene::Scale::from(&scan.units_guess());
+    let scale = nkrr::scene::Scale::from(&guess);
     match nkrr::scene::decide(cloud, &settings, scale) {
         // A scene runs tile by tile, each tile as one small cloud: the memory is the largest
         // tile's, under what a tile runs (the page's preflight says the same).
@@ -274,8 +276,10 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         tell!("warning: {w}");
     }
     tell!("read {} points from {input} ({})", parsed.cloud.len(), parsed.layout);
+    // Once: the guess sorts a sample of the cloud (the points lying apart left out).
+    let guess = parsed.units_guess();
     if settings.units.is_none() {
-        let g = parsed.units_guess();
+        let g = &guess;
         if g.warn {
             tell!("warning: no --units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): pass --units mm if they are millimetres", g.reason);
         }
@@ -320,7 +324,7 @@ fn reconstruct(args: &[String]) -> Result<(), Failure> {
         }
         true
     };
-    let scale = nkrr::scene::Scale::from(&parsed.units_guess());
+    let scale = nkrr::scene::Scale::from(&guess);
     let rec = pollster::block_on(nkrr::scene::reconstruct_auto(&engine, &parsed.cloud, &settings, scale, &mut report))
         .map_err(|e| fail(format!("{input}: {e}")))?;
     if let Some(t) = &rec.tuning {
