@@ -142,7 +142,9 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
             }
         }
     };
-    let result = crate::scene::reconstruct_auto(&engine, &parsed.cloud, &opts.settings, (&parsed.units_guess()).into(), &mut report).await;
+    // Made once: it sorts a sample of the cloud, and the notices say it again.
+    let guess = parsed.units_guess();
+    let result = crate::scene::reconstruct_auto(&engine, &parsed.cloud, &opts.settings, (&guess).into(), &mut report).await;
     if let Some(trouble) = take_trouble() {
         return Err(error("GpuError", &trouble));
     }
@@ -162,7 +164,7 @@ pub async fn reconstruct(bytes: Vec<u8>, options: JsValue, on_progress: Function
 
     let stats = stats_object(&parsed, &opts.settings, &rec, &mesh, &report, &timings);
     set(&stats, "seconds", now() - t0);
-    set(&stats, "notices", notices(&parsed, &opts.settings, &rec, &report));
+    set(&stats, "notices", notices(&parsed, &guess, &opts.settings, &rec, &report));
     set(&stats, "tuning", rec.tuning.as_ref().map_or(JsValue::NULL, |t| tuning_object(t).into()));
     set(&stats, "adapter", engine.gpu.describe());
 
@@ -216,19 +218,16 @@ fn stats_object(
 
 /// Everything the user should know about the run, one sentence each: the pipeline's notices,
 /// the reader's warnings, a units warning, what the GLB left out.
-fn notices(parsed: &crate::io::ScanFile, settings: &Settings, rec: &Reconstruction, report: &gltf::GlbReport) -> Array {
+fn notices(parsed: &crate::io::ScanFile, guess: &crate::units::UnitsGuess, settings: &Settings, rec: &Reconstruction, report: &gltf::GlbReport) -> Array {
     let mut lines: Vec<String> = crate::settings::unused(settings, None).iter().map(|u| format!("Warning: {}", u.page())).collect();
     lines.extend(rec.warnings.iter().map(|w| format!("Warning: {w}")));
     lines.extend(rec.notices.iter().cloned());
     lines.extend(parsed.warnings());
-    if settings.units.is_none() {
-        let g = parsed.units_guess();
-        if g.warn {
-            lines.push(format!(
-                "no units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): choose mm if they are millimetres",
-                g.reason
-            ));
-        }
+    if settings.units.is_none() && guess.warn {
+        lines.push(format!(
+            "no units given and {}; the mesh keeps the file's numbers as metres (glTF's unit): choose mm if they are millimetres",
+            guess.reason
+        ));
     }
     if report.degenerate_triangles_dropped > 0 {
         lines.push(format!("{} degenerate triangles were left out of the GLB", report.degenerate_triangles_dropped));
