@@ -64,6 +64,14 @@ fn overlap_cells() -> i64 {
 
 /// Cells around each point's cell whose corners are evaluated.
 pub const BAND: i64 = 2;
+/// The most a tile's field is raised at a node to pass through the points near it (the
+/// network's logit). A closed object in a tile comes out of the prior with its zero level inside
+/// its points (the field at them about -1, the interior barely positive), so its surface breaks
+/// up; sheets' points sit inside their slab (about +3) and are left alone. The cap keeps a stray
+/// point in open air (about -8) from raising a blob around itself.
+pub const LEVEL_CAP: f32 = 4.0;
+/// Points whose field at them is averaged for a node's raise.
+const LEVEL_NEAREST: usize = 8;
 /// Fewer points than this in a tile's cube: nothing to reconstruct there.
 const MIN_TILE_POINTS: usize = 30;
 
@@ -291,6 +299,73 @@ impl TilePlan {
         self.members(points).iter().map(|m| (m.len() as f64 * weight).round() as usize).max().unwrap_or(0)
     }
 
+    /// Raises a tile's `values` (at its band `nodes`, ascending keys) where its field passes
+    /// inside `points`: each node by the mean over its [`LEVEL_NEAREST`] points of the field
+    /// there (trilinear in the tile's own nodes) where that is below zero, at most [`LEVEL_CAP`].
+    /// So the zero level goes through the points of a closed object that the prior, seeing it in
+    /// a room's tile, left barely inside (docs/scenes.md, "The level at the points").
+    fn level_at_points(&self, tile: [i64; 3], nodes: &[u64], values: &mut [f32], points: &[[f32; 3]]) {
+        let value = |n: [i64; 3]| nodes.binary_search(&self.node_key(n)).ok().map(|i| values[i]);
+        let mut at = Vec::with_capacity(points.len());
+        let mut level = Vec::with_capacity(points.len());
+        for p in points {
+            let x = [0, 1, 2].map(|a| (p[a] as f64 - self.origin[a]) / self.cell);
+            let c = x.map(|v| v.floor() as i64);
+            let t = [0, 1, 2].map(|a| x[a] - c[a] as f64);
+            let mut f = 0.0;
+            let mut whole = true;
+            for corner in 0..8 {
+                let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+                let Some(v) = value([0, 1, 2].map(|a| c[a] + d[a] as i64)) else {
+                    whole = false;
+                    break;
+                };
+                let w: f64 = (0..3).map(|a| if d[a] == 1 { t[a] } else { 1.0 - t[a] }).product();
+                f += w * v as f64;
+            }
+            // A point at the tile's outer border has no cell of nodes around it.
+            if whole {
+                at.push(*p);
+                level.push((f as f32).clamp(-LEVEL_CAP, 0.0));
+            }
+        }
+        if level.iter().all(|&l| l == 0.0) {
+            return;
+        }
+        // A neighbour search per node, only for the band around the points below zero (the
+        // rest would be raised by nothing, or by a point beyond that band among its nearest),
+        // split over the cores: on a real GPU a scene's time is such CPU loops (docs/scenes.md,
+        // "On a GPU"). The band of a subset of the points is a subset of the tile's nodes.
+        let below: Vec<[f32; 3]> = at.iter().zip(&level).filter(|(_, &l)| l < 0.0).map(|(p, _)| *p).collect();
+        let near_below = self.band_nodes(tile, &below);
+        let mut searched = Vec::with_capacity(near_below.len());
+        let mut i = 0;
+        for k in near_below {
+            while i < nodes.len() && nodes[i] < k {
+                i += 1;
+            }
+            if i < nodes.len() && nodes[i] == k {
+                searched.push(i);
+            }
+        }
+        let index = crate::sample::PointIndex::new(&at);
+        let raise = crate::par::map_ranges(searched.len(), |range| {
+            let mut near = Vec::new();
+            searched[range]
+                .iter()
+                .map(|&i| {
+                    let n = self.node_of_key(nodes[i]);
+                    let q = [0, 1, 2].map(|a| (self.origin[a] + n[a] as f64 * self.cell) as f32);
+                    index.k_nearest(q, LEVEL_NEAREST, &mut near);
+                    near.iter().map(|&(_, j)| level[j as usize]).sum::<f32>() / near.len().max(1) as f32
+                })
+                .collect()
+        });
+        for (&i, r) in searched.iter().zip(raise) {
+            values[i] -= r;
+        }
+    }
+
     fn node_key(&self, n: [i64; 3]) -> u64 {
         let r1 = self.resolution as u64 + 1;
         n[0] as u64 + r1 * (n[1] as u64 + r1 * n[2] as u64)
@@ -488,6 +563,7 @@ pub async fn reconstruct(
             evaluations += values.len() as u64;
             // The evaluator is rebound to the next tile's planes before it decodes again.
             engine.gpu.retire([planes.buffer]);
+            tiles.level_at_points(*tile, &nodes, &mut values, &points);
             sweep.add_tile(*tile, &nodes, &values);
         }
         let new = sweep.tile_done(*tile);
@@ -846,6 +922,75 @@ mod tests {
             assert_eq!(got, reference(tile, &pts), "tile {tile:?}");
         }
         assert!(plan.band_nodes([1, 1, 1], &[]).is_empty());
+    }
+
+    /// A closed object whose field crosses zero inside its points is raised to cross at them; a
+    /// sheet inside its slab is left as it is; a stray point in open air stays below zero.
+    #[test]
+    fn a_tiles_field_is_raised_to_pass_through_its_points() {
+        let plan = TilePlan { size: 1.0, cell: 1.0 / 64.0, origin: [0.0; 3], resolution: 192, tiles: Vec::new(), reason: String::new() };
+        let tile = [1, 1, 1];
+        let node_at = |k: u64| plan.node_of_key(k).map(|n| n as f64 * plan.cell);
+        let at_points = |nodes: &[u64], values: &[f32], pts: &[[f32; 3]]| -> Vec<f64> {
+            // The field at each point, trilinear in the nodes around it.
+            pts.iter()
+                .map(|p| {
+                    let x = p.map(|v| v as f64 / plan.cell);
+                    let c = x.map(|v| v.floor() as i64);
+                    (0..8)
+                        .map(|corner| {
+                            let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1].map(|b| b as i64);
+                            let i = nodes.binary_search(&plan.node_key([0, 1, 2].map(|a| c[a] + d[a]))).unwrap();
+                            let w: f64 = (0..3).map(|a| if d[a] == 1 { x[a] - c[a] as f64 } else { 1.0 - x[a] + c[a] as f64 }).product();
+                            w * values[i] as f64
+                        })
+                        .sum()
+                })
+                .collect()
+        };
+        // A ball of radius 0.3 whose field is zero 1.6 cells inside its points (-1 at them).
+        let centre = [1.5; 3];
+        let mut rng = crate::rng::SplitMix64(5);
+        let ball: Vec<[f32; 3]> = (0..3000)
+            .map(|_| {
+                let d = [0; 3].map(|_| rng.unit() * 2.0 - 1.0);
+                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-9);
+                [0, 1, 2].map(|a| (centre[a] + 0.3 * d[a] / n) as f32)
+            })
+            .collect();
+        let radius = |x: [f64; 3]| (0..3).map(|a| (x[a] - centre[a]).powi(2)).sum::<f64>().sqrt();
+        let nodes = plan.band_nodes(tile, &ball);
+        let mut values: Vec<f32> = nodes.iter().map(|&k| (40.0 * (0.3 - radius(node_at(k))) - 1.0) as f32).collect();
+        let before = at_points(&nodes, &values, &ball);
+        assert!(before.iter().all(|&f| (f + 1.0).abs() < 0.1));
+        plan.level_at_points(tile, &nodes, &mut values, &ball);
+        let after = at_points(&nodes, &values, &ball);
+        let mean = after.iter().sum::<f64>() / after.len() as f64;
+        assert!(mean.abs() < 0.05 && after.iter().all(|&f| f.abs() < 0.2), "mean {mean}");
+        // Inside the points by more than a cell is inside now (it was outside down to 1.6 cells).
+        for (&k, &v) in nodes.iter().zip(&values) {
+            let r = radius(node_at(k));
+            if r < 0.3 - plan.cell {
+                assert!(v > 0.0, "r {r} v {v}");
+            } else if r > 0.3 + plan.cell {
+                assert!(v < 0.0, "r {r} v {v}");
+            }
+        }
+
+        // A floor: its points at the middle of the field's slab (+3) are left alone.
+        let floor: Vec<[f32; 3]> = (0..2000).map(|_| [(1.0 + rng.unit()) as f32, (1.0 + rng.unit()) as f32, 1.5]).collect();
+        let nodes = plan.band_nodes(tile, &floor);
+        let slab: Vec<f32> = nodes.iter().map(|&k| (3.0 - 200.0 * (node_at(k)[2] - 1.5).abs()) as f32).collect();
+        let mut values = slab.clone();
+        plan.level_at_points(tile, &nodes, &mut values, &floor);
+        assert_eq!(values, slab);
+
+        // A few stray points in open air (-8): raised by the cap at most, so still outside.
+        let stray: Vec<[f32; 3]> = (0..5).map(|i| [1.5 + 0.001 * i as f32, 1.5, 1.5]).collect();
+        let nodes = plan.band_nodes(tile, &stray);
+        let mut values = vec![-8.0f32; nodes.len()];
+        plan.level_at_points(tile, &nodes, &mut values, &stray);
+        assert!(values.iter().all(|&v| v == -8.0 + LEVEL_CAP), "{values:?}");
     }
 
     /// A wavy strip of floor 6 m long through [`Sweep`] against meshing the whole blend at once
