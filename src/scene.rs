@@ -329,14 +329,14 @@ impl TilePlan {
                 level.push((f as f32).clamp(-LEVEL_CAP, 0.0));
             }
         }
-        if level.iter().all(|&l| l == 0.0) {
-            return;
-        }
         // A neighbour search per node, only for the band around the points below zero (the
         // rest would be raised by nothing, or by a point beyond that band among its nearest),
         // split over the cores: on a real GPU a scene's time is such CPU loops (docs/scenes.md,
         // "On a GPU"). The band of a subset of the points is a subset of the tile's nodes.
         let below: Vec<[f32; 3]> = at.iter().zip(&level).filter(|(_, &l)| l < 0.0).map(|(p, _)| *p).collect();
+        if below.is_empty() {
+            return;
+        }
         let near_below = self.band_nodes(tile, &below);
         let mut searched = Vec::with_capacity(near_below.len());
         let mut i = 0;
